@@ -1,0 +1,7 @@
+"""``python -m liquidtwin_viewer`` is the ``liquidtwin-viewer`` command."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())
