@@ -11,6 +11,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 import pytest
 from viewer_recordings import three_frames, write_clouds
 
@@ -106,3 +107,31 @@ def test_viewer_help():
 def test_viewer_requires_mcap():
     run = subprocess.run([_console_script()], capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "--mcap" in run.stderr
+
+
+def test_playback_advances_the_slider_and_wraps():
+    from liquidtwin_viewer import PointCloudSeries
+    from liquidtwin_viewer.app import PlaybackViewer
+
+    frames = tuple(f.astype("float32") for f in three_frames())
+    series = PointCloudSeries("/particles", np.array([0, 20_000_000, 40_000_000]), frames)
+    viewer = PlaybackViewer(series, host="127.0.0.1", port=_free_port())
+    try:
+        assert viewer.frame.value == 0 and "4 points" in viewer.label.content
+        viewer.frame.value = 2
+        assert viewer.label.content == "t = 0.040 s · 6 points"
+        viewer.speed.value = 10.0
+        viewer.playing.value = True
+        seen = set()
+        deadline = time.monotonic() + 10
+        while len(seen) < 3 and time.monotonic() < deadline:
+            seen.add(int(viewer.frame.value))
+            time.sleep(0.005)
+        assert seen == {0, 1, 2}  # wrapped from the last frame back to the first
+        viewer.playing.value = False
+        time.sleep(0.3)
+        still = viewer.frame.value
+        time.sleep(0.3)
+        assert viewer.frame.value == still
+    finally:
+        viewer.stop()

@@ -41,6 +41,7 @@ class PlaybackViewer:
         self.playing = gui.add_checkbox("play", initial_value=False, disabled=last == 0)
         self.speed = gui.add_number("speed", 1.0, min=0.01, max=100.0, step=0.01)
         self.label = gui.add_markdown("")
+        self._aim_camera()
         self.frame.on_update(lambda _: self.show(int(self.frame.value)))
         self.show(0)
         self._stop = threading.Event()
@@ -72,6 +73,16 @@ class PlaybackViewer:
         )
         t = (self.series.times_ns[index] - self.series.times_ns[0]) * 1e-9
         self.label.content = f"t = {t:.3f} s · {len(points)} points"
+
+    def _aim_camera(self) -> None:
+        """Start browsers looking at the bounding box of all frames, z up."""
+        points = np.concatenate([f for f in self.series.frames if len(f)] or [np.zeros((1, 3))])
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        center = (lo + hi) / 2
+        reach = max(float(np.linalg.norm(hi - lo)), 1e-3)
+        self.server.scene.set_up_direction("+z")
+        self.server.initial_camera.look_at = center
+        self.server.initial_camera.position = center + reach * np.array([1.2, -1.2, 0.8])
 
     def stop(self) -> None:
         """Stop playback and the server."""
