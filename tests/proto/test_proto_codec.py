@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from liquidtwin_proto import DTYPES, MAX_NDIM, ArrayError, Error, PackedArray, pack_array, unpack_array
+from liquidtwin_proto import (DTYPES, MAX_NDIM, ArrayError, Error, PackedArray, pack_array,
+                              unpack_array)
 
 
 def _through_wire(message: PackedArray) -> PackedArray:

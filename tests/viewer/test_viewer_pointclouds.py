@@ -82,7 +82,8 @@ def test_load_errors(tmp_path):
                         extra=[("/camera", CompressedImage(format="png"))])
     with pytest.raises(RecordingError, match="no such file"):
         load_point_clouds(tmp_path / "missing.mcap")
-    with pytest.raises(RecordingError, match="no topic '/nope'; foxglove.PointCloud topics there: /particles"):
+    with pytest.raises(RecordingError,
+                       match="no topic '/nope'; foxglove.PointCloud topics there: /particles"):
         load_point_clouds(good, "/nope")
     with pytest.raises(RecordingError, match="carries foxglove.CompressedImage protobuf messages"):
         load_point_clouds(good, "/camera")

@@ -32,4 +32,5 @@ def write_clouds(path, frames, *, topic="/particles", dt_ns=100_000_000, extra=(
 
 def three_frames() -> list[np.ndarray]:
     """Three clouds of 4, 5 and 6 points with distinct, exactly representable values."""
-    return [np.arange(3 * n, dtype=np.float32).reshape(n, 3) / 8 + i for i, n in enumerate((4, 5, 6))]
+    return [np.arange(3 * n, dtype=np.float32).reshape(n, 3) / 8 + i
+            for i, n in enumerate((4, 5, 6))]

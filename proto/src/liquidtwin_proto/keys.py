@@ -75,7 +75,9 @@ def validate_prefix(prefix: str) -> str:
         raise ValueError("key prefix must be a non-empty string")
     for chunk in prefix.split("/"):
         if not chunk:
-            raise ValueError(f"key prefix {prefix!r} has an empty chunk (leading, trailing or '//')")
+            raise ValueError(
+                f"key prefix {prefix!r} has an empty chunk (leading, trailing or '//')"
+            )
         validate_id(chunk, f"key prefix {prefix!r} chunk")
     return prefix
 

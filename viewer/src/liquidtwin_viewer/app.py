@@ -99,6 +99,7 @@ class PlaybackViewer:
             i = int(self.frame.value)
             nxt = (i + 1) % len(self.series)
             gap_s = float(times[nxt] - times[i]) * 1e-9 if nxt else _MAX_PAUSE_S / 2
-            self._stop.wait(float(np.clip(gap_s / self.speed.value, 0.0, _MAX_PAUSE_S)))
+            speed = max(float(self.speed.value), 1e-3)
+            self._stop.wait(float(np.clip(gap_s / speed, 0.0, _MAX_PAUSE_S)))
             if self.playing.value and int(self.frame.value) == i:
                 self.frame.value = nxt

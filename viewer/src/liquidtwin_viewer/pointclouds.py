@@ -78,7 +78,9 @@ def decode_point_cloud(cloud: PointCloud) -> np.ndarray:
         if fmt is None:
             raise RecordingError(f"field {name!r} has unsupported numeric type {field.type}")
         if field.offset + np.dtype(fmt).itemsize > stride:
-            raise RecordingError(f"field {name!r} at offset {field.offset} overruns stride {stride}")
+            raise RecordingError(
+                f"field {name!r} at offset {field.offset} overruns stride {stride}"
+            )
         names.append(name)
         formats.append(fmt)
         offsets.append(field.offset)
@@ -112,11 +114,12 @@ def load_point_clouds(path: str | Path, topic: str = "/particles") -> PointCloud
             if summary is not None:
                 _check_topic(path, topic, summary)
             for schema, channel, message in reader.iter_messages(topics=[topic]):
-                if schema is None or schema.name != SCHEMA_NAME or channel.message_encoding != "protobuf":
+                encoding = channel.message_encoding
+                if schema is None or schema.name != SCHEMA_NAME or encoding != "protobuf":
                     raise RecordingError(
                         f"{path}: topic {topic!r} carries "
                         f"{schema.name if schema else 'schemaless'} "
-                        f"{channel.message_encoding} messages, not protobuf {SCHEMA_NAME}"
+                        f"{encoding} messages, not protobuf {SCHEMA_NAME}"
                     )
                 try:
                     frames.append(decode_point_cloud(PointCloud.FromString(message.data)))
