@@ -1,0 +1,16 @@
+"""SPNets core: neighbour search, ConvSP, ConvSDF and the differentiable PBF step."""
+
+from .convsp import ConvSP, convsp
+from .kernels import KERNELS, kernel_value
+from .neighbors import Neighbors, brute_force_neighbors, cell_order, find_neighbors
+from .packing import calibrate, lattice, particle_volume
+from .pbf import FluidModel, FluidParams, FluidState, collide_move, make_state, rollout, step
+from .sdf import SDFGrid, conv_sdf, interpolate_poses, min_sdf, push_out, quat_from_axis_angle, quat_to_matrix
+from .terms import LinearDrag, Term, UniformAcceleration
+
+__all__ = [
+    "ConvSP", "convsp", "KERNELS", "kernel_value", "Neighbors", "brute_force_neighbors", "cell_order",
+    "find_neighbors", "calibrate", "lattice", "particle_volume", "FluidModel", "FluidParams", "FluidState",
+    "collide_move", "make_state", "rollout", "step", "SDFGrid", "conv_sdf", "interpolate_poses", "min_sdf",
+    "push_out", "quat_from_axis_angle", "quat_to_matrix", "LinearDrag", "Term", "UniformAcceleration",
+]

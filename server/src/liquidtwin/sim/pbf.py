@@ -1,0 +1,468 @@
+"""SPNets: Position Based Fluids as differentiable layers (thesis §8.1–8.2, SPEC §1).
+
+``step(model, state, poses) -> state`` is a pure function: :class:`FluidModel` is static
+(kernel radius, time step, objects, calibrated constants, extra terms) and holds the
+learnable :class:`FluidParams` (tensors that take gradients); :class:`FluidState` holds the
+time-varying tensors. The step is built from small phases: predict (gravity and extra
+accelerations, anti-clipped moves), neighbours (hash grid, particles kept sorted by cell),
+K constraint iterations (pressure, cohesion, surface tension, extra position terms,
+anti-clipped collisions), velocity update and viscosity.
+
+Two numerically equivalent back ends compute the particle-pair sums: ``"torch"`` composes
+ConvSP calls exactly as the thesis expands them (the reference), ``"fused"`` runs the C++
+kernels of :mod:`liquidtwin.sim.fused` (fast path on CPU). ``"auto"`` picks fused when it can.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch.utils.checkpoint import checkpoint
+
+from . import fused
+from .convsp import convsp
+from .neighbors import Neighbors, cell_order, check_points, find_neighbors
+from .packing import calibrate, particle_volume
+from .sdf import POSE_DIM, SDFGrid, check_poses, interpolate_poses, push_out, sweep_bound
+from .terms import Term
+
+PIECE_FRACTION = 1.0 / 3.0
+"""Anti-clipping pieces (particle move + object sweep) are at most this fraction of the
+thinnest wall: a particle then penetrates at most a third of a wall, where the sampled SDF
+(cells of at most a quarter wall) still points back to the side it came from."""
+
+PARAM_NAMES = ("lambda_omega", "lambda_c", "lambda_s", "lambda_v", "rho0")
+
+
+@dataclass(frozen=True, eq=False)
+class FluidParams:
+    """Learnable fluid parameters, each a 0-d tensor.
+
+    Attributes:
+      lambda_omega: pressure stiffness relative to the calibrated κ (1 = calibrated).
+      lambda_c: cohesion; displacement λ_c·h·Σ_j n_ij W_c(d_ij).
+      lambda_s: surface tension; displacement (λ_s/ρ̃0)·h·Σ_j (n_j − n_i), ρ̃0 = ρ0·h³.
+      lambda_v: viscosity, 1/s; velocity change dt·(λ_v/ρ0)·Σ_j W_ρ(d_ij)(v_j − v_i).
+      rho0: rest density in kernel units (Σ_j W_ρ with unit mass), m⁻³.
+    """
+
+    lambda_omega: torch.Tensor
+    lambda_c: torch.Tensor
+    lambda_s: torch.Tensor
+    lambda_v: torch.Tensor
+    rho0: torch.Tensor
+
+    def __post_init__(self):
+        for name in PARAM_NAMES:
+            value = getattr(self, name)
+            if not isinstance(value, torch.Tensor):
+                value = torch.tensor(float(value), dtype=torch.float64)
+                object.__setattr__(self, name, value)
+            if value.numel() != 1:
+                raise ValueError(f"fluid parameter {name} must be a scalar, got shape {tuple(value.shape)}")
+            if not bool(torch.isfinite(value.detach()).all()):
+                raise ValueError(f"fluid parameter {name} is not finite: {value.detach().item()}")
+        if float(self.rho0.detach()) <= 0:
+            raise ValueError(f"rest density rho0 must be > 0, got {float(self.rho0.detach())}")
+
+    def replace(self, **changes) -> "FluidParams":
+        return dataclasses.replace(self, **changes)
+
+    def to(self, dtype=None, device=None) -> "FluidParams":
+        return FluidParams(**{n: getattr(self, n).to(dtype=dtype, device=device) for n in PARAM_NAMES})
+
+    def as_dict(self) -> dict[str, float]:
+        return {n: float(getattr(self, n).detach()) for n in PARAM_NAMES}
+
+
+@dataclass(frozen=True)
+class FluidState:
+    """Time-varying state, particles sorted by hash-grid cell.
+
+    Attributes:
+      x: (N, 3) particle positions, m.
+      v: (N, 3) particle velocities, m/s.
+      ids: (N,) int64 original particle labels (``x[i]`` is particle ``ids[i]``).
+      poses: (M, 7) object poses at time t (tx ty tz qx qy qz qw).
+      t: time, s.
+    """
+
+    x: torch.Tensor
+    v: torch.Tensor
+    ids: torch.Tensor
+    poses: torch.Tensor
+    t: float = 0.0
+
+    def by_id(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(x, v) reordered so row k is particle k (differentiable)."""
+        inv = torch.empty_like(self.ids)
+        inv[self.ids] = torch.arange(self.ids.numel(), device=self.ids.device)
+        return self.x[inv], self.v[inv]
+
+
+@dataclass(frozen=True, eq=False)
+class FluidModel:
+    """Static description of the fluid and the scene. Build with :meth:`create`.
+
+    Attributes:
+      h: kernel radius, m.
+      spacing: rest distance between particles, m (default 0.55·h).
+      dt: time step, s.
+      gravity: (3,) m/s², y up.
+      iterations: constraint iterations K.
+      objects: rigid objects as SDF grids.
+      params: learnable :class:`FluidParams`.
+      terms: extra :class:`~liquidtwin.sim.terms.Term` s.
+      kappa: calibrated pressure stiffness, m⁶ (ω = λ_ω κ max(ρ − ρ0, 0)).
+      rest_density: calibrated ρ0, m⁻³ (the default of ``params.rho0``).
+      collision_distance: particles are kept this far outside objects, m.
+      relaxation, damp: constraint corrections are divided by max(count/(1 + relaxation), damp).
+      max_speed: optional speed cap, m/s, applied before prediction.
+      skin: neighbour lists are built to h + skin and rebuilt when a particle moves skin/2.
+      max_pieces: upper bound on anti-clipping pieces per move (a warning names any excess).
+      backend: "auto", "torch" (ConvSP reference) or "fused" (C++ kernels).
+    """
+
+    h: float
+    spacing: float
+    dt: float
+    gravity: tuple[float, float, float]
+    iterations: int
+    objects: tuple[SDFGrid, ...]
+    params: FluidParams
+    terms: tuple[Term, ...]
+    kappa: float
+    rest_density: float
+    collision_distance: float
+    relaxation: float
+    damp: float
+    max_speed: float | None
+    skin: float
+    max_pieces: int
+    backend: str
+    _normal_dilation: float = field(default=0.0, repr=False)
+
+    @staticmethod
+    def create(h: float = 0.1, *, spacing: float | None = None, dt: float = 1.0 / 60.0,
+               gravity=(0.0, -9.8, 0.0), iterations: int = 3, objects=(), params: dict | None = None,
+               terms=(), collision_distance: float | None = None, relaxation: float = 3.0,
+               damp: float = 1.0, max_speed: float | None = None, skin: float | None = None,
+               max_pieces: int = 256, backend: str = "auto") -> "FluidModel":
+        """A model with calibrated rest density and stiffness.
+
+        ``params`` overrides defaults (λ_ω = 1, λ_c = 0.1, λ_s = 0, λ_v = 60 1/s,
+        ρ0 = calibrated); values may be floats or tensors (keep ``requires_grad``).
+        """
+        if not h > 0 or not dt > 0 or iterations < 1:
+            raise ValueError(f"need h > 0, dt > 0, iterations >= 1 (got {h}, {dt}, {iterations})")
+        if backend not in ("auto", "torch", "fused"):
+            raise ValueError(f"backend must be auto, torch or fused, got {backend!r}")
+        if backend == "fused" and not fused.available():
+            raise RuntimeError("backend 'fused' needs the liquidtwin._native extension (reinstall the server "
+                               "package with a C++ compiler: pip install --no-build-isolation -e server)")
+        spacing = 0.55 * h if spacing is None else spacing
+        rho0, kappa = calibrate(h, spacing)
+        values = dict(lambda_omega=1.0, lambda_c=0.1, lambda_s=0.0, lambda_v=60.0, rho0=rho0)
+        unknown = set(params or {}) - set(values)
+        if unknown:
+            raise ValueError(f"unknown fluid parameters {sorted(unknown)}; expected {PARAM_NAMES}")
+        values.update(params or {})
+        objects = tuple(objects)
+        for o in objects:
+            if not isinstance(o, SDFGrid):
+                raise TypeError(f"objects must be SDFGrid, got {type(o).__name__}")
+        dil = 0.5 * min([o.cell for o in objects], default=h)
+        return FluidModel(
+            h=float(h), spacing=float(spacing), dt=float(dt), gravity=tuple(float(g) for g in gravity),
+            iterations=int(iterations), objects=objects, params=FluidParams(**values), terms=tuple(terms),
+            kappa=kappa, rest_density=rho0,
+            collision_distance=0.0125 * h if collision_distance is None else float(collision_distance),
+            relaxation=float(relaxation), damp=float(damp), max_speed=max_speed,
+            skin=0.1 * h if skin is None else float(skin), max_pieces=int(max_pieces), backend=backend,
+            _normal_dilation=dil,
+        )
+
+    def replace(self, **changes) -> "FluidModel":
+        return dataclasses.replace(self, **changes)
+
+    def with_params(self, **values) -> "FluidModel":
+        """Model with some fluid parameters replaced (floats or tensors)."""
+        return self.replace(params=self.params.replace(
+            **{k: v if isinstance(v, torch.Tensor) else torch.tensor(float(v), dtype=torch.float64)
+               for k, v in values.items()}))
+
+    @property
+    def particle_volume(self) -> float:
+        """Liquid volume per particle at rest, m³ (multiply by 1e6 for ml)."""
+        return particle_volume(self.spacing)
+
+    def use_fused(self, x: torch.Tensor) -> bool:
+        if self.backend == "torch":
+            return False
+        return fused.available(x.device)
+
+
+def make_state(x, v=None, poses=None, *, dtype=torch.float32, device="cpu", t: float = 0.0) -> FluidState:
+    """A :class:`FluidState` from arrays: x (N, 3) m, v (N, 3) m/s (default 0), poses (M, 7)."""
+    x = torch.as_tensor(x, dtype=dtype, device=device)
+    v = torch.zeros_like(x) if v is None else torch.as_tensor(v, dtype=dtype, device=device)
+    poses = torch.zeros(0, POSE_DIM, dtype=dtype, device=device) if poses is None else \
+        torch.as_tensor(poses, dtype=dtype, device=device)
+    check_points(x, "particle positions")
+    if x.shape[0] == 0:
+        raise ValueError("empty particle set: a fluid state needs at least one particle")
+    check_points(v, "particle velocities")
+    if v.shape != x.shape:
+        raise ValueError(f"velocities {tuple(v.shape)} do not match positions {tuple(x.shape)}")
+    ids = torch.arange(x.shape[0], device=x.device)
+    return FluidState(x, v, ids, poses.reshape(-1, POSE_DIM), float(t))
+
+
+# ------------------------------------------------------------------ pair passes (reference)
+
+def density_normals(x: torch.Tensor, nb: Neighbors, h: float):
+    """ρ_i = Σ_j W_ρ(d_ij) (N,), neighbour count (N,), n_i = Σ_j n_ij W_c(d_ij) (N, 3).
+
+    n_i is built from one 4-channel ConvSP with the W_c/d kernel: Σ x_j W̄ − x_i Σ W̄.
+    """
+    ones = torch.ones(x.shape[0], 1, dtype=x.dtype, device=x.device)
+    rho = convsp(x, ones[:, 0], "rho", h, neighbors=nb)
+    count = convsp(x, ones[:, 0], "constant", h, neighbors=nb).detach()
+    s = convsp(x, torch.cat([ones, x], 1), "cohesion", h, neighbors=nb, dis_norm=True)
+    nrm = s[:, 1:] - x * s[:, :1]
+    return rho, count, nrm
+
+
+def pressure_tension(x: torch.Tensor, omega: torch.Tensor, nrm: torch.Tensor, count: torch.Tensor,
+                     nb: Neighbors, h: float):
+    """Pressure sum Σ_j n_ji (ω_i + ω_j) W_ω(d_ij) (N, 3) by the thesis's four-term
+    expansion (one 8-channel ConvSP), and tension sum Σ_{d_ij<h} (n_j − n_i) (N, 3)."""
+    ones = torch.ones(x.shape[0], 1, dtype=x.dtype, device=x.device)
+    w = omega[:, None]
+    s = convsp(x, torch.cat([ones, w, x, x * w], 1), "omega", h, neighbors=nb, dis_norm=True)
+    pressure = x * w * s[:, 0:1] + x * s[:, 1:2] - w * s[:, 2:5] - s[:, 5:8]
+    tension = convsp(x, nrm, "constant", h, neighbors=nb) - nrm * count[:, None]
+    return pressure, tension
+
+
+def viscosity_sum(x: torch.Tensor, v: torch.Tensor, rho: torch.Tensor, nb: Neighbors, h: float):
+    """Σ_j W_ρ(d_ij)(v_j − v_i) (N, 3) = ConvSP(V) − V·ρ."""
+    return convsp(x, v, "rho", h, neighbors=nb) - v * rho[:, None]
+
+
+# ------------------------------------------------------------------ step phases
+
+class _Lists:
+    """Neighbour lists of the sorted particles, plus where they were built (for the skin test)."""
+
+    def __init__(self, model: FluidModel, x: torch.Tensor):
+        self.model = model
+        self.radius = model.h + model.skin
+        self.fused = model.use_fused(x)
+        self.rebuilds = 0
+        self.order = self._build(x)
+
+    def _build(self, x: torch.Tensor) -> torch.Tensor:
+        if self.fused:
+            order, self.row_ptr, self.col = fused.sorted_neighbors(x, self.radius)
+            order = order.to(x.device)
+        else:
+            order = cell_order(x, self.radius)
+            nb = find_neighbors(x.detach()[order], None, self.radius)
+            self.row_ptr, self.col = nb.row_ptr, nb.col
+        self.anchor = x.detach()[order]
+        return order
+
+    @property
+    def nb(self) -> Neighbors:
+        return Neighbors(self.row_ptr, self.col, self.radius)
+
+    def refresh(self, x: torch.Tensor) -> torch.Tensor | None:
+        """Rebuild when some particle moved more than skin/2; returns the new order or None."""
+        moved = (x.detach() - self.anchor).norm(dim=-1).max()
+        if float(moved) * 2.0 <= self.model.skin:
+            return None
+        self.rebuilds += 1
+        return self._build(x)
+
+    def density_normals(self, x):
+        if self.fused:
+            return fused.density_normals(x, self.row_ptr, self.col, self.model.h)
+        return density_normals(x, self.nb, self.model.h)
+
+    def pressure_tension(self, x, omega, nrm, count):
+        if self.fused:
+            return fused.pressure_tension(x, omega, nrm, self.row_ptr, self.col, self.model.h)
+        return pressure_tension(x, omega, nrm, count, self.nb, self.model.h)
+
+    def viscosity(self, x, v, rho):
+        if self.fused:
+            return fused.viscosity(x, v, self.row_ptr, self.col, self.model.h)
+        return viscosity_sum(x, v, rho, self.nb, self.model.h)
+
+
+def collide_move(model: FluidModel, x: torch.Tensor, delta: torch.Tensor, pose_a: torch.Tensor,
+                 pose_b: torch.Tensor) -> torch.Tensor:
+    """Move particles by ``delta`` while objects move from ``pose_a`` to ``pose_b`` (M, 7),
+    without letting any particle pass through a wall (anti-clipping).
+
+    The move is split into S equal pieces, each shorter than a third of the thinnest wall once
+    the object's own sweep is added; after each piece particles are pushed out of objects
+    posed at the matching fraction of their motion. Only particles that could reach an
+    object during the move (by a lower bound on their distance) take part.
+    """
+    if not model.objects:
+        return x + delta
+    sweep = float(sweep_bound(model.objects, pose_a.detach(), pose_b.detach()).max())
+    reach = delta.detach().norm(dim=-1)
+    start = _sdf_lower_bound(model, x.detach(), pose_a.detach())
+    margin = model.collision_distance + 2.0 * max(o.cell for o in model.objects)
+    active = torch.nonzero(start < reach + sweep + margin).flatten()
+    if active.numel() == 0:
+        return x + delta
+    piece = PIECE_FRACTION * min(o.thickness for o in model.objects)
+    pieces = max(1, math.ceil((float(reach[active].max()) + sweep) / piece))
+    if pieces > model.max_pieces:
+        warnings.warn(f"anti-clipping needs {pieces} pieces for this move but max_pieces is "
+                      f"{model.max_pieces}: fast particles or objects may cross walls thinner than "
+                      f"{piece / PIECE_FRACTION:.4f} m; raise FluidModel.max_pieces or lower dt", RuntimeWarning)
+        pieces = model.max_pieces
+    xa, da = x[active], delta[active] / pieces
+    for s in range(1, pieces + 1):
+        pose = pose_b if s == pieces else interpolate_poses(pose_a, pose_b, s / pieces)
+        xa = push_out(xa + da, model.objects, pose, model.collision_distance, model._normal_dilation)
+    return (x + delta).index_copy(0, active, xa)
+
+
+def _sdf_lower_bound(model: FluidModel, x: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
+    from .sdf import _world_to_local
+    return torch.stack([o.lower_bound_local(_world_to_local(x, poses[j]))
+                        for j, o in enumerate(model.objects)], 0).min(0).values
+
+
+def _check_step_inputs(model: FluidModel, state: FluidState, poses: torch.Tensor) -> None:
+    if state.x.shape[0] == 0:
+        raise ValueError("empty particle set: nothing to simulate")
+    check_points(state.x, "particle positions")
+    check_points(state.v, "particle velocities")
+    check_poses(poses, len(model.objects))
+    check_poses(state.poses, len(model.objects))
+
+
+def step(model: FluidModel, state: FluidState, poses: torch.Tensor | None = None) -> FluidState:
+    """Advance the fluid by one time step dt (SPEC §1, thesis Fig. 8.1).
+
+    Args:
+      model: static :class:`FluidModel` (with learnable params).
+      state: :class:`FluidState` at time t.
+      poses: (M, 7) object poses at t + dt; objects move linearly from ``state.poses``
+        during the step. ``None`` keeps them where they are.
+    Returns:
+      the state at t + dt, particles re-sorted by cell.
+    """
+    poses = state.poses if poses is None else poses.to(state.x)
+    _check_step_inputs(model, state, poses)
+    p = model.params
+    x0, v = state.x, state.v
+    dt, h = model.dt, model.h
+
+    # Predict: gravity and extra accelerations, optional speed cap, anti-clipped move.
+    acc = torch.tensor(model.gravity, dtype=x0.dtype, device=x0.device).expand_as(v)
+    for term in model.terms:
+        a = term.acceleration(model, state)
+        if a is not None:
+            acc = acc + a
+    v = v + dt * acc
+    if model.max_speed is not None:
+        speed = v.norm(dim=-1, keepdim=True)
+        v = v * torch.clamp(model.max_speed / speed.clamp_min(1e-12), max=1.0)
+    x = collide_move(model, x0, dt * v, state.poses, poses)
+
+    # Neighbours; keep everything sorted by cell from here on.
+    lists = _Lists(model, x)
+    order, ids = lists.order, state.ids
+    x, x0, ids = x[order], x0[order], ids[order]
+
+    rho0 = p.rho0.to(x)
+    stiff = p.lambda_omega.to(x) * model.kappa
+    coh = p.lambda_c.to(x) * h
+    tens = p.lambda_s.to(x) * h / (rho0 * h**3)
+    for _ in range(model.iterations):
+        order = lists.refresh(x)
+        if order is not None:
+            x, x0, ids = x[order], x0[order], ids[order]
+        rho, count, nrm = lists.density_normals(x)
+        omega = stiff * F.relu(rho - rho0)
+        pressure, tension = lists.pressure_tension(x, omega, nrm, count)
+        scale = torch.clamp(count / (1.0 + model.relaxation), min=model.damp)[:, None]
+        delta = (pressure + coh * nrm + tens * tension) / scale
+        for term in model.terms:
+            d = term.position_delta(model, x, ids)
+            if d is not None:
+                delta = delta + d
+        x = collide_move(model, x, delta, poses, poses)
+
+    v = (x - x0) / dt
+    order = lists.refresh(x)
+    if order is not None:
+        x, v, ids = x[order], v[order], ids[order]
+    if lists.fused:
+        visc = lists.viscosity(x, v, None)
+    else:
+        rho = convsp(x, torch.ones_like(x[:, 0]), "rho", h, neighbors=lists.nb)
+        visc = lists.viscosity(x, v, rho)
+    v = v + dt * p.lambda_v.to(x) / rho0 * visc
+    for term in model.terms:
+        dv = term.velocity_delta(model, x, v, ids)
+        if dv is not None:
+            v = v + dv
+
+    if not bool(torch.isfinite(x.detach()).all() and torch.isfinite(v.detach()).all()):
+        raise FloatingPointError(f"the step produced non-finite particles at t = {state.t + dt:.4f} s "
+                                 f"(parameters {p.as_dict()}); the state before it is unchanged")
+    return FluidState(x, v, ids, poses, state.t + dt)
+
+
+def rollout(model: FluidModel, state: FluidState, poses: torch.Tensor | None = None, steps: int | None = None,
+            *, checkpoint_steps: bool = False, keep: bool = True, callback=None):
+    """Run many steps.
+
+    Args:
+      poses: (T, M, 7) object poses at the end of each step, or None (objects stay).
+      steps: number of steps (default T).
+      checkpoint_steps: recompute each step in backward instead of storing its
+        intermediates (gradient checkpointing; memory O(T·N) instead of O(T·pairs)).
+      keep: return every state (else only the last, and the list is empty).
+      callback: called with (i, state) after each step (e.g. a progress bar).
+    Returns:
+      (final state, list of states after each step).
+    """
+    if poses is None and steps is None:
+        raise ValueError("give object poses (T, M, 7) or a number of steps")
+    steps = poses.shape[0] if steps is None else steps
+    states = []
+    for i in range(steps):
+        pose = None if poses is None else poses[i]
+        if checkpoint_steps and torch.is_grad_enabled():
+            state = _checkpointed_step(model, state, pose)
+        else:
+            state = step(model, state, pose)
+        if keep:
+            states.append(state)
+        if callback is not None:
+            callback(i, state)
+    return state, states
+
+
+def _checkpointed_step(model: FluidModel, state: FluidState, pose) -> FluidState:
+    def run(x, v, poses_a, poses_b):
+        s = step(model, FluidState(x, v, state.ids, poses_a, state.t), poses_b)
+        return s.x, s.v, s.ids
+    pose = state.poses if pose is None else pose
+    x, v, ids = checkpoint(run, state.x, state.v, state.poses, pose, use_reentrant=False)
+    return FluidState(x, v, ids, pose, state.t + model.dt)

@@ -1,0 +1,55 @@
+"""Extra force and constraint terms: the place to extend the physics without editing the step.
+
+A term is a frozen dataclass whose tensor fields are its (learnable) parameters. The step
+calls three hooks; each returns ``None`` (no contribution) or an (N, 3) tensor:
+
+- ``acceleration(model, state)`` — m/s², added to gravity before prediction;
+- ``position_delta(model, x, ids)`` — m, added to the constraint corrections in every
+  solver iteration (particles sorted by cell; ``ids`` maps them to their original labels);
+- ``velocity_delta(model, x, v, ids)`` — m/s, added after viscosity.
+
+Discrepancy discovery adds drag, wind, adhesion, leaks … as such terms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+class Term:
+    """Base class: contributes nothing. Override the hooks you need."""
+
+    name = "term"
+
+    def acceleration(self, model, state) -> torch.Tensor | None:
+        return None
+
+    def position_delta(self, model, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor | None:
+        return None
+
+    def velocity_delta(self, model, x: torch.Tensor, v: torch.Tensor, ids: torch.Tensor) -> torch.Tensor | None:
+        return None
+
+
+@dataclass(frozen=True, eq=False)
+class LinearDrag(Term):
+    """Air drag proportional to velocity: a = −k v. ``k``: scalar tensor, 1/s."""
+
+    k: torch.Tensor
+    name = "drag"
+
+    def acceleration(self, model, state):
+        return -self.k * state.v
+
+
+@dataclass(frozen=True, eq=False)
+class UniformAcceleration(Term):
+    """The same extra acceleration on every particle (e.g. wind). ``a``: (3,) tensor, m/s²."""
+
+    a: torch.Tensor
+    name = "wind"
+
+    def acceleration(self, model, state):
+        return self.a.to(state.v).expand_as(state.v)
