@@ -412,6 +412,17 @@ def build(n_particles: int, params: Params | None = None, threads: int = 2) -> T
     return TaichiPBF(make_dam_break(n_particles, params), params)
 
 
+def _busy_cpu_seconds() -> float:
+    """CPU seconds all processes on this machine have spent busy (Linux /proc/stat), or nan."""
+    try:
+        with open("/proc/stat") as fh:
+            ticks = [int(v) for v in fh.readline().split()[1:]]
+    except (OSError, ValueError):
+        return float("nan")
+    idle = ticks[3] + (ticks[4] if len(ticks) > 4 else 0)  # idle + iowait
+    return (sum(ticks[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
 def timed_run(n_particles: int, steps: int, warmup: int, threads: int = 2,
               params: Params | None = None) -> dict:
     sim = build(n_particles, params, threads)
@@ -420,6 +431,7 @@ def timed_run(n_particles: int, steps: int, warmup: int, threads: int = 2,
         sim.step()
     ti.sync()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    b0 = _busy_cpu_seconds()
     c0 = time.process_time()
     t0 = time.perf_counter()
     for _ in range(steps):
@@ -427,6 +439,7 @@ def timed_run(n_particles: int, steps: int, warmup: int, threads: int = 2,
     ti.sync()
     elapsed = time.perf_counter() - t0
     cpu = time.process_time() - c0
+    others = (_busy_cpu_seconds() - b0 - cpu) / elapsed if elapsed > 0 else float("nan")
     nn = sim.num_nbr.to_numpy()
     sim.measure_density()
     # bulk: full kernel support from particles alone -- not at the free surface, not by a wall
@@ -446,6 +459,9 @@ def timed_run(n_particles: int, steps: int, warmup: int, threads: int = 2,
         # process CPU seconds per wall second while timing: ~threads when the
         # machine is otherwise idle, lower when something else holds the cores
         "cpu_per_wall": cpu / elapsed if elapsed > 0 else float("nan"),
+        # cores kept busy by other processes meanwhile (Linux): > ~0.2 means the timing is
+        # contended and the ratio to our simulator should not be trusted
+        "other_cores_busy": max(0.0, others) if math.isfinite(others) else others,
         "loadavg_1m_before": load,
         "xsph": sim.xsph_c,
         "dt": sim.dt,
