@@ -209,6 +209,8 @@ def sweep_bound(objects, p0: torch.Tensor, p1: torch.Tensor) -> torch.Tensor:
         return torch.zeros(0)
     q0 = p0[:, 3:] / p0[:, 3:].norm(dim=-1, keepdim=True)
     q1 = p1[:, 3:] / p1[:, 3:].norm(dim=-1, keepdim=True)
-    angle = 2 * torch.acos((q0 * q1).sum(-1).abs().clamp(max=1.0))
+    sign = torch.where((q0 * q1).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(q0.dtype)
+    # 4·asin(|Δq|/2) is the rotation angle, accurate near zero (acos of the dot is not).
+    angle = 4 * torch.asin(((q1 * sign - q0).norm(dim=-1) / 2).clamp(max=1.0))
     radius = torch.tensor([o.bounding_radius for o in objects], dtype=p0.dtype)
     return ((p1[:, :3] - p0[:, :3]).norm(dim=-1) + radius * angle).detach()

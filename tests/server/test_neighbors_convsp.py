@@ -1,0 +1,117 @@
+"""Neighbour search and ConvSP against brute-force O(N²) references."""
+
+import math
+
+import pytest
+import torch
+
+import liquidtwin as lt
+from liquidtwin.sim import fused
+from liquidtwin.sim.kernels import kernel_value
+
+
+def _pairs(nb):
+    return set(zip(nb.rows().tolist(), nb.col.tolist()))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_neighbors_match_brute_force(seed):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(700, 3, generator=g, dtype=torch.float64) * 0.3 - 0.1
+    x[:5] += torch.tensor([50.0, -3e3, 7.0], dtype=torch.float64)  # far from the others
+    x[5:9] = x[10]  # coincident points
+    r = 0.037
+    assert _pairs(lt.find_neighbors(x, None, r)) == _pairs(lt.brute_force_neighbors(x, None, r))
+    q = torch.rand(90, 3, generator=g, dtype=torch.float64) * 0.3 - 0.1
+    assert _pairs(lt.find_neighbors(q, x, r)) == _pairs(lt.brute_force_neighbors(q, x, r))
+
+
+@pytest.mark.skipif(not fused.available(), reason="C++ extension not built (pip install --no-build-isolation)")
+def test_native_neighbors_match_brute_force():
+    g = torch.Generator().manual_seed(7)
+    x = torch.rand(900, 3, generator=g) * 0.2
+    x[0] = torch.tensor([1e4, 1e4, -1e4])
+    order, row_ptr, col = fused.sorted_neighbors(x, 0.03)
+    assert sorted(order.tolist()) == list(range(900))
+    xs = x[order]
+    got = set()
+    for i in range(900):
+        got |= {(i, int(j)) for j in col[row_ptr[i]:row_ptr[i + 1]]}
+    assert got == _pairs(lt.brute_force_neighbors(xs, None, 0.03))
+    keys = torch.floor(xs / 0.03)
+    # sorted by cell: equal cells are contiguous
+    changes = (keys[1:] != keys[:-1]).any(1).sum()
+    assert int(changes) + 1 == len(torch.unique(keys, dim=0))
+
+
+def test_single_particle_and_empty_queries():
+    x = torch.zeros(1, 3)
+    assert lt.find_neighbors(x, None, 0.1).num_pairs == 0
+    assert lt.find_neighbors(torch.zeros(0, 3), x, 0.1).row_ptr.tolist() == [0]
+
+
+def test_bad_positions_are_rejected():
+    x = torch.rand(10, 3)
+    x[3, 1] = float("nan")
+    with pytest.raises(ValueError, match="non-finite"):
+        lt.find_neighbors(x, None, 0.1)
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        lt.find_neighbors(torch.rand(10, 2), None, 0.1)
+
+
+def _brute_convsp(q, d, y, kernel, h, dis_norm=False, same=True):
+    diff = q[:, None, :] - d[None, :, :]
+    dist = diff.norm(dim=-1)
+    w = kernel_value(kernel, dist, h)
+    if same:
+        w = w * (1 - torch.eye(len(q), dtype=q.dtype))
+    if dis_norm:
+        w = torch.where(dist > 0, w / dist.clamp_min(1e-30), torch.zeros_like(w))
+    return w @ y
+
+
+@pytest.mark.parametrize("kernel", lt.KERNELS)
+def test_convsp_matches_brute_force(kernel):
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(300, 3, generator=g, dtype=torch.float64) * 0.25
+    y = torch.randn(300, 5, generator=g, dtype=torch.float64)
+    h = 0.06
+    for dis_norm in (False, True):
+        out = lt.convsp(x, y, kernel, h, dis_norm=dis_norm)
+        ref = _brute_convsp(x, x, y, kernel, h, dis_norm)
+        torch.testing.assert_close(out, ref, rtol=1e-10, atol=1e-8)
+    q = torch.rand(40, 3, generator=g, dtype=torch.float64) * 0.25
+    torch.testing.assert_close(lt.convsp(q, y, kernel, h, data=x), _brute_convsp(q, x, y, kernel, h, same=False),
+                               rtol=1e-10, atol=1e-8)
+
+
+def test_convsp_include_self_and_layer_weights():
+    x = torch.rand(50, 3, dtype=torch.float64) * 0.1
+    y = torch.randn(50, 2, dtype=torch.float64)
+    h = 0.05
+    with_self = lt.convsp(x, y, "rho", h, include_self=True)
+    torch.testing.assert_close(with_self - lt.convsp(x, y, "rho", h), y * 15 / (math.pi * h**3))
+    layer = lt.ConvSP(2, 3, "poly6", h).double()
+    with torch.no_grad():
+        layer.weight.copy_(torch.randn(3, 2))
+        layer.bias.copy_(torch.randn(3))
+    out = layer(x, y)
+    torch.testing.assert_close(out, lt.convsp(x, y, "poly6", h) @ layer.weight.T + layer.bias)
+
+
+def test_convsp_gradcheck_positions_queries_features_weights():
+    g = torch.Generator().manual_seed(3)
+    x = (torch.rand(25, 3, generator=g, dtype=torch.float64) * 0.12).requires_grad_()
+    q = (torch.rand(8, 3, generator=g, dtype=torch.float64) * 0.12).requires_grad_()
+    y = torch.randn(25, 2, generator=g, dtype=torch.float64, requires_grad=True)
+    layer = lt.ConvSP(2, 2, "cohesion", 0.06, dis_norm=True).double()
+    nb = lt.find_neighbors(q.detach(), x.detach(), 0.06)
+    w, b = layer.weight, layer.bias
+
+    def f(q, x, y, w, b):
+        s = lt.convsp(q, y, "cohesion", 0.06, data=x, neighbors=nb, dis_norm=True)
+        return s @ w.T + b
+    assert torch.autograd.gradcheck(f, (q, x, y, w, b))
+    for kernel in ("rho", "omega", "spiky", "poly6"):
+        nb2 = lt.find_neighbors(x.detach(), None, 0.06)
+        assert torch.autograd.gradcheck(lambda x, y: lt.convsp(x, y, kernel, 0.06, neighbors=nb2), (x, y))
