@@ -1,0 +1,158 @@
+"""``liquidtwin``: the server package's command line.
+
+Subcommands live in :data:`COMMANDS` (name → :class:`Command`); add a new one there. A
+command either configures its own argparse sub-parser (``configure``) and runs with the
+parsed namespace, or is a *pass-through* that receives the raw arguments after its name
+and parses them itself (``bench``, whose module owns its options).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class Command:
+    """One ``liquidtwin`` subcommand.
+
+    Attributes:
+      help: one line for ``liquidtwin --help``.
+      run: ``run(args) -> exit code``; args is the parsed namespace, or the list of raw
+        arguments for a pass-through command.
+      configure: adds the command's arguments to its sub-parser (None for pass-through).
+      passthrough: hand the raw arguments after the command name to ``run``.
+    """
+
+    help: str
+    run: Callable
+    configure: Callable[[argparse.ArgumentParser], None] | None = None
+    passthrough: bool = False
+
+
+# ------------------------------------------------------------------ demo
+
+def _configure_demo(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=Path, default=Path("out/demo.mcap"), metavar="PATH",
+                   help="MCAP recording to write (default: %(default)s)")
+    p.add_argument("--seconds", type=float, default=None, metavar="S",
+                   help="simulated time in s (default: the whole pour, about 5.2 s)")
+    p.add_argument("--particles-scale", type=float, default=1.0, metavar="F",
+                   help="multiply the particle count by F at the same liquid volume (default: 1, "
+                        "about 1050 particles)")
+    p.add_argument("--backend", choices=("auto", "torch", "fused"), default="auto",
+                   help="pair-sum back end: fused C++ kernels or the ConvSP reference (default: auto)")
+    p.add_argument("--every", type=int, default=4, metavar="K",
+                   help="record every K-th step (default: %(default)s, i.e. 30 frames per simulated s)")
+    p.add_argument("--threads", type=int, default=1, metavar="N",
+                   help="torch CPU threads (default: 1; the default scene is small and extra threads "
+                        "only pay at a larger --particles-scale)")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    """Simulate the cup→bowl pour, record it to MCAP, print a summary table."""
+    import torch
+    from tqdm import tqdm
+
+    from .record import Recorder
+    from .scenes.pour import build_pour_scene, liquid_volumes
+    from .sim import step
+
+    if args.every < 1:
+        raise SystemExit("liquidtwin demo: --every must be >= 1")
+    if args.seconds is not None and not args.seconds > 0:
+        raise SystemExit("liquidtwin demo: --seconds must be > 0")
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+
+    t_total = time.perf_counter()
+    scene = build_pour_scene(seconds=args.seconds, particles_scale=args.particles_scale, backend=args.backend)
+    model, state = scene.model, scene.state
+    n = state.x.shape[0]
+    start = liquid_volumes(model, state, scene.containers)
+    sim_wall = 0.0
+    with Recorder(args.out) as rec, torch.no_grad():
+        rec.write_state(state, scene.names, start)
+        bar = tqdm(total=scene.steps, desc="pour", unit="step", disable=args.no_progress, file=sys.stderr)
+        for i in range(scene.steps):
+            t0 = time.perf_counter()
+            state = step(model, state, scene.poses[i])
+            sim_wall += time.perf_counter() - t0
+            if (i + 1) % args.every == 0 or i + 1 == scene.steps:
+                rec.write_state(state, scene.names, liquid_volumes(model, state, scene.containers))
+            bar.update(1)
+        bar.close()
+        frames = rec.frames
+    end = liquid_volumes(model, state, scene.containers)
+    total = time.perf_counter() - t_total
+
+    rows = [
+        ("backend", "fused" if model.use_fused(state.x) else "torch"),
+        ("particles", f"{n}"),
+        ("kernel radius h", f"{model.h * 100:.2f} cm"),
+        ("steps", f"{scene.steps} (dt = 1/{round(1 / model.dt)} s, {scene.steps * model.dt:.2f} s simulated)"),
+        ("wall time", f"{sim_wall:.1f} s stepping, {total:.1f} s total"),
+        ("steps/s", f"{scene.steps / sim_wall:.1f}"),
+        ("particle-steps/s", f"{n * scene.steps / sim_wall:,.0f}"),
+    ]
+    for name in start:
+        rows.append((f"{name} (ml)", f"{start[name]:7.1f} at start → {end[name]:7.1f} at end"))
+    rows += [("recording", f"{args.out} ({frames} frames)"),
+             ("view it", f"liquidtwin-viewer --mcap {args.out}")]
+    width = max(len(k) for k, _ in rows)
+    print("liquidtwin demo: cup pours into a bowl")
+    for k, v in rows:
+        print(f"  {k:<{width}}  {v}")
+    return 0
+
+
+# ------------------------------------------------------------------ bench (module owned elsewhere)
+
+def run_bench(argv: list[str]) -> int:
+    from liquidtwin import bench  # lazy: keeps `liquidtwin demo` free of bench imports
+    bench.main(argv)
+    return 0
+
+
+# ------------------------------------------------------------------ registry
+
+#: Subcommands of ``liquidtwin``. Add new ones here.
+COMMANDS: dict[str, Command] = {
+    "demo": Command("simulate a cup pouring into a bowl, record it to MCAP, print a summary",
+                    run_demo, _configure_demo),
+    "bench": Command("speed and memory benchmarks of the SPNets step (JSON records)", run_bench,
+                     passthrough=True),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``liquidtwin`` argument parser (pass-through commands parse their own options)."""
+    parser = argparse.ArgumentParser(
+        prog="liquidtwin",
+        description="liquidtwin server: a live, differentiable SPNets twin of the liquid a robot handles.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, cmd in COMMANDS.items():
+        sp = sub.add_parser(name, help=cmd.help, description=cmd.help)
+        if cmd.configure is not None:
+            cmd.configure(sp)
+        else:
+            sp.add_argument("args", nargs=argparse.REMAINDER, help=f"options of 'liquidtwin {name}'")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``liquidtwin`` console script; returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in COMMANDS and COMMANDS[argv[0]].passthrough:
+        return int(COMMANDS[argv[0]].run(argv[1:]) or 0)
+    args = build_parser().parse_args(argv)
+    return int(COMMANDS[args.command].run(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
