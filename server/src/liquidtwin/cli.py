@@ -45,12 +45,14 @@ def _configure_demo(p: argparse.ArgumentParser) -> None:
                    help="multiply the particle count by F at the same liquid volume (default: 1, "
                         "about 1050 particles)")
     p.add_argument("--backend", choices=("auto", "torch", "fused"), default="auto",
-                   help="pair-sum back end: fused C++ kernels or the ConvSP reference (default: auto)")
+                   help="pair-sum back end: fused C++ kernels or the ConvSP reference "
+                        "(default: auto)")
     p.add_argument("--every", type=int, default=4, metavar="K",
-                   help="record every K-th step (default: %(default)s, i.e. 30 frames per simulated s)")
+                   help="record every K-th step (default: %(default)s, i.e. 30 frames per "
+                        "simulated s)")
     p.add_argument("--threads", type=int, default=1, metavar="N",
-                   help="torch CPU threads (default: 1; the default scene is small and extra threads "
-                        "only pay at a larger --particles-scale)")
+                   help="torch CPU threads (default: 1; the default scene is small and extra "
+                        "threads only pay at a larger --particles-scale)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
@@ -71,14 +73,16 @@ def run_demo(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
 
     t_total = time.perf_counter()
-    scene = build_pour_scene(seconds=args.seconds, particles_scale=args.particles_scale, backend=args.backend)
+    scene = build_pour_scene(seconds=args.seconds, particles_scale=args.particles_scale,
+                             backend=args.backend)
     model, state = scene.model, scene.state
     n = state.x.shape[0]
     start = liquid_volumes(model, state, scene.containers)
     sim_wall = 0.0
     with Recorder(args.out) as rec, torch.no_grad():
         rec.write_state(state, scene.names, start)
-        bar = tqdm(total=scene.steps, desc="pour", unit="step", disable=args.no_progress, file=sys.stderr)
+        bar = tqdm(total=scene.steps, desc="pour", unit="step", disable=args.no_progress,
+                   file=sys.stderr)
         for i in range(scene.steps):
             t0 = time.perf_counter()
             state = step(model, state, scene.poses[i])
@@ -95,7 +99,8 @@ def run_demo(args: argparse.Namespace) -> int:
         ("backend", "fused" if model.use_fused(state.x) else "torch"),
         ("particles", f"{n}"),
         ("kernel radius h", f"{model.h * 100:.2f} cm"),
-        ("steps", f"{scene.steps} (dt = 1/{round(1 / model.dt)} s, {scene.steps * model.dt:.2f} s simulated)"),
+        ("steps", f"{scene.steps} (dt = 1/{round(1 / model.dt)} s, "
+                  f"{scene.steps * model.dt:.2f} s simulated)"),
         ("wall time", f"{sim_wall:.1f} s stepping, {total:.1f} s total"),
         ("steps/s", f"{scene.steps / sim_wall:.1f}"),
         ("particle-steps/s", f"{n * scene.steps / sim_wall:,.0f}"),
@@ -134,14 +139,16 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``liquidtwin`` argument parser (pass-through commands parse their own options)."""
     parser = argparse.ArgumentParser(
         prog="liquidtwin",
-        description="liquidtwin server: a live, differentiable SPNets twin of the liquid a robot handles.")
+        description="liquidtwin server: a live, differentiable SPNets twin of the liquid a "
+                    "robot handles.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, cmd in COMMANDS.items():
         sp = sub.add_parser(name, help=cmd.help, description=cmd.help)
         if cmd.configure is not None:
             cmd.configure(sp)
         else:
-            sp.add_argument("args", nargs=argparse.REMAINDER, help=f"options of 'liquidtwin {name}'")
+            sp.add_argument("args", nargs=argparse.REMAINDER,
+                            help=f"options of 'liquidtwin {name}' (see 'liquidtwin {name} --help')")
     return parser
 
 

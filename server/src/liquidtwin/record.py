@@ -55,12 +55,13 @@ def point_cloud(x, stamp_ns: int = 0, frame_id: str = WORLD_FRAME) -> PointCloud
               for i, n in enumerate("xyz")]
     return PointCloud(
         timestamp=_timestamp(stamp_ns), frame_id=frame_id,
-        pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+        pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0),
+                  orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
         point_stride=12, fields=fields, data=np.ascontiguousarray(x, dtype="<f4").tobytes())
 
 
 def frame_transforms(poses, names, stamp_ns: int = 0, parent: str = WORLD_FRAME) -> FrameTransforms:
-    """``foxglove.FrameTransforms``: one ``parent`` → ``names[j]`` transform per pose row (M, 7)."""
+    """``foxglove.FrameTransforms``: a ``parent`` → ``names[j]`` transform per pose row (M, 7)."""
     poses = _numpy(poses).astype(np.float64).reshape(-1, 7)
     if len(names) != poses.shape[0]:
         raise ValueError(f"{poses.shape[0]} poses but {len(names)} names")
@@ -107,19 +108,19 @@ class Recorder:
         """Log time of sim time ``t`` (s), ns."""
         return self.start_ns + int(round(t * 1e9))
 
-    def write(self, t: float, x, *, poses=None, names=(), volumes: dict[str, float] | None = None) -> None:
+    def write(self, t: float, x, *, poses=None, names=(),
+              volumes: dict[str, float] | None = None) -> None:
         """Record one frame at sim time ``t`` (s): particles (N, 3), optional object poses
         (M, 7) with their names, optional volumes {name: ml}."""
         ns = self.stamp(t)
         seq = self.frames
-        self._writer.write_message(PARTICLES_TOPIC, point_cloud(x, ns), log_time=ns, publish_time=ns,
-                                   sequence=seq)
+        messages = [(PARTICLES_TOPIC, point_cloud(x, ns))]
         if poses is not None and len(names):
-            self._writer.write_message(OBJECTS_TOPIC, frame_transforms(poses, names, ns), log_time=ns,
-                                       publish_time=ns, sequence=seq)
+            messages.append((OBJECTS_TOPIC, frame_transforms(poses, names, ns)))
         if volumes is not None:
-            msg = volumes_message(volumes, ns, seq, self.session_id)
-            self._writer.write_message(VOLUMES_TOPIC, msg, log_time=ns, publish_time=ns, sequence=seq)
+            messages.append((VOLUMES_TOPIC, volumes_message(volumes, ns, seq, self.session_id)))
+        for topic, msg in messages:
+            self._writer.write_message(topic, msg, log_time=ns, publish_time=ns, sequence=seq)
         self.frames += 1
 
     def write_state(self, state, names=(), volumes: dict[str, float] | None = None) -> None:

@@ -8,7 +8,7 @@ upright; bowl and floor stay put.
 
 >>> scene = build_pour_scene()
 >>> final, _ = rollout(scene.model, scene.state, scene.poses, keep=False)
->>> liquid_volumes(scene.model, final, scene.containers)   # {"cup": ..., "bowl": ..., "spilled": ...}
+>>> liquid_volumes(scene.model, final, scene.containers)  # {"cup": …, "bowl": …, "spilled": …}
 """
 
 from __future__ import annotations
@@ -202,7 +202,8 @@ def build_pour_scene(*, seconds: float | None = None, particles_scale: float = 1
     objects = [shapes.cup_grid(CUP_RADIUS, CUP_HEIGHT, WALL, cell=cell),
                shapes.bowl_grid(BOWL_RADIUS, WALL, cell=cell),
                shapes.floor_grid(half_xz=0.4, depth=0.05, cell=0.01)]
-    model = FluidModel.create(h, objects=objects, dt=DT, iterations=4, relaxation=4.0, backend=backend)
+    model = FluidModel.create(h, objects=objects, dt=DT, iterations=4, relaxation=4.0,
+                              backend=backend)
 
     def poses_at(t: float) -> torch.Tensor:
         ident = torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
