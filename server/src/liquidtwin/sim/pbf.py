@@ -341,8 +341,8 @@ def collide_move(model: FluidModel, x: torch.Tensor, delta: torch.Tensor, pose_a
 
 def _sdf_lower_bound(model: FluidModel, x: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
     from .sdf import _world_to_local
-    return torch.stack([o.lower_bound_local(_world_to_local(x, poses[j]))
-                        for j, o in enumerate(model.objects)], 0).min(0).values
+    vals = [o.lower_bound_local(_world_to_local(x, poses[j])) for j, o in enumerate(model.objects)]
+    return vals[0] if len(vals) == 1 else torch.stack(vals, 0).min(0).values
 
 
 def _check_step_inputs(model: FluidModel, state: FluidState, poses: torch.Tensor) -> None:

@@ -142,7 +142,8 @@ class SDFGrid:
 def _world_to_local(points: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
     """World points (..., 3) → frame of an object at pose (7,)."""
     R = quat_to_matrix(pose[3:])
-    return (points - pose[:3]) @ R  # R^T (p - t) for row vectors
+    flat = (points.reshape(-1, 3) - pose[:3]) @ R  # R^T (p - t) for row vectors, one 2-D GEMM
+    return flat.reshape(points.shape)
 
 
 def min_sdf(points: torch.Tensor, objects, poses: torch.Tensor) -> torch.Tensor:
@@ -171,7 +172,7 @@ def conv_sdf(points: torch.Tensor, objects, poses: torch.Tensor, offsets: torch.
       (N, C).
     """
     pts = points[:, None, :] + offsets.to(points)[None] * dilation  # (N, K, 3)
-    return min_sdf(pts, objects, poses) @ weights.to(points).T
+    return torch.mm(min_sdf(pts, objects, poses), weights.to(points).T)
 
 
 # Stencil for collisions: centre + ±x, ±y, ±z. Row 0 of the weights reads the SDF value

@@ -1,0 +1,210 @@
+"""``liquidtwin bench``: speed and memory of the SPNets step on a realistic scene.
+
+Records (JSON lines, appended to ``bench/history.jsonl`` when run from the repository):
+- ``forward``: particle-steps/s of the step at 2k, 8k, 32k particles (K = 3);
+- ``forward_backward``: one 10-step differentiable rollout + backward, and its cost
+  relative to the forward steps;
+- ``rollout_memory``: peak resident memory of a 60-step differentiable rollout at 8k
+  particles with and without gradient checkpointing (each in a fresh process);
+- ``peer``: a Taichi PBF at the same particle counts when ``bench/peers`` and taichi are
+  available (``pip install -r bench/requirements-peers.txt``), with our/peer ratios.
+Each record has ``what``, ``particles``, ``particle_steps_per_s``, ``peak_mem_bytes``,
+``commit``, ``date``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from .scenes import shapes
+from .sim import FluidModel, lattice, make_state, rollout, step
+
+
+def _scene(n: int, backend: str = "auto", h: float = 0.1):
+    """~n particles at rest spacing in an open basin, at the thesis's scale (h = 0.1)."""
+    spacing = 0.55 * h
+    side = (n * 0.75 * spacing**3 / 0.5) ** (1 / 3)  # a block half as tall as it is wide
+    wall, gap = 0.3 * h, 0.2 * h
+    box = shapes.open_box_grid((side / 2 + gap, side / 2 + gap), side, wall)
+    model = FluidModel.create(h, objects=[box], backend=backend, dt=1 / 120, relaxation=4.0)
+    x = lattice([-side / 2, wall + gap, -side / 2], [side / 2, wall + gap + side / 2, side / 2], spacing)
+    state = make_state(x, poses=torch.tensor([[0, 0, 0, 0, 0, 0, 1.0]]))
+    return model, state
+
+
+def _mean_neighbors(model, state) -> float:
+    from .sim import find_neighbors
+    return find_neighbors(state.x, None, model.h).num_pairs / len(state.x)
+
+
+def forward(n: int, steps: int, backend: str) -> dict:
+    model, state = _scene(n, backend)
+    with torch.no_grad():
+        for _ in range(3):  # warm up, let the block start moving
+            state = step(model, state)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            state = step(model, state)
+        dt = time.perf_counter() - t0
+    n = len(state.x)
+    return dict(what="forward", particles=n, steps=steps, seconds=dt, particle_steps_per_s=n * steps / dt,
+                neighbors_per_particle=_mean_neighbors(model, state), iterations=model.iterations)
+
+
+def forward_backward(n: int, steps: int, backend: str) -> dict:
+    model, state = _scene(n, backend)
+    with torch.no_grad():
+        for _ in range(3):
+            state = step(model, state)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            step(model, state)
+        fwd = time.perf_counter() - t0
+    lv = torch.tensor(60.0, requires_grad=True)
+    m = model.with_params(lambda_v=lv)
+    t0 = time.perf_counter()
+    final, _ = rollout(m, state, steps=steps, keep=False)
+    final.x[:, 1].mean().backward()
+    both = time.perf_counter() - t0
+    n = len(state.x)
+    return dict(what="forward_backward", particles=n, steps=steps, seconds=both,
+                particle_steps_per_s=n * steps / both, forward_seconds=fwd, ratio_to_forward=both / fwd,
+                grad_finite=bool(torch.isfinite(lv.grad)))
+
+
+def rollout_memory(n: int, steps: int, checkpointed: bool, backend: str) -> dict:
+    """Run in a fresh interpreter so the peak resident set belongs to this measurement."""
+    code = ("import json,resource,torch;from liquidtwin import bench as b;"
+            f"print(json.dumps(b._memory_child({n},{steps},{checkpointed},'{backend}')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _vm(field: str) -> int:
+    """A memory figure of this process from /proc/self/status (VmRSS, VmHWM), bytes.
+
+    VmHWM is the peak resident set of this process image; unlike ru_maxrss it is not
+    carried over from the parent across exec, so a child measures only itself."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def _memory_child(n: int, steps: int, checkpointed: bool, backend: str) -> dict:
+    model, state = _scene(n, backend)
+    base = _vm("VmRSS")
+    lv = torch.tensor(60.0, requires_grad=True)
+    t0 = time.perf_counter()
+    final, _ = rollout(model.with_params(lambda_v=lv), state, steps=steps, keep=False,
+                       checkpoint_steps=checkpointed)
+    final.x[:, 1].mean().backward()
+    peak = _vm("VmHWM")
+    return dict(what="rollout_memory", particles=len(state.x), steps=steps, checkpointed=checkpointed,
+                peak_mem_bytes=peak, baseline_bytes=base, rollout_bytes=peak - base,
+                seconds=time.perf_counter() - t0, particle_steps_per_s=len(state.x) * steps / (time.perf_counter() - t0))
+
+
+def peer(n: int) -> dict | None:
+    root = Path(__file__).resolve().parents[3]
+    if not (root / "bench" / "peers").is_dir():
+        return None
+    sys.path.insert(0, str(root))
+    try:
+        from bench.peers import try_run_peer
+    except ImportError:
+        return None
+    res = try_run_peer("taichi", n, steps=60, warmup=10)
+    if res:
+        res = dict(res, what="peer")
+    return res
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=Path(__file__).parent).stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
+def main(argv=None) -> list[dict]:
+    p = argparse.ArgumentParser(prog="liquidtwin bench", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--particles", type=int, nargs="+", default=[2000, 8000, 32000])
+    p.add_argument("--steps", type=int, default=30, help="timed forward steps per size")
+    p.add_argument("--backend", default="auto", choices=["auto", "torch", "fused"])
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
+    p.add_argument("--no-memory", action="store_true", help="skip the 60-step memory runs")
+    p.add_argument("--no-peer", action="store_true", help="skip the Taichi peer")
+    p.add_argument("--out", type=Path, default=None, help="write the records as JSON here")
+    p.add_argument("--history", type=Path, default=Path(__file__).resolve().parents[3] / "bench" / "history.jsonl",
+                   help="append records to this JSON-lines file (default bench/history.jsonl)")
+    a = p.parse_args(argv)
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    from tqdm import tqdm
+    jobs = [("forward", n) for n in a.particles] + [("forward_backward", 8000 if 8000 in a.particles else a.particles[0])]
+    mem_n = 8000 if 8000 in a.particles else a.particles[0]
+    if not a.no_memory:
+        jobs += [("rollout_memory", False), ("rollout_memory", True)]
+    if not a.no_peer:
+        jobs += [("peer", n) for n in a.particles]
+    records = []
+    for what, arg in tqdm(jobs, desc="bench", unit="run"):
+        if what == "forward":
+            r = forward(arg, a.steps, a.backend)
+        elif what == "forward_backward":
+            r = forward_backward(arg, 10, a.backend)
+        elif what == "rollout_memory":
+            r = rollout_memory(mem_n, 60, arg, a.backend)
+        else:
+            r = peer(arg)
+            if r is None:
+                tqdm.write("peer: taichi not installed (pip install -r bench/requirements-peers.txt); skipped")
+                continue
+        r.setdefault("peak_mem_bytes", _vm("VmHWM"))
+        r.update(commit=_commit(), date=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                 threads=torch.get_num_threads(), backend=a.backend)
+        records.append(r)
+    _print_table(records)
+    if a.out:
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        a.out.write_text(json.dumps(records, indent=1))
+    if a.history and a.history.parent.is_dir():
+        with a.history.open("a") as f:
+            for r in records:
+                f.write(json.dumps(r) + "\n")
+    return records
+
+
+def _print_table(records):
+    ours = {r["particles"]: r["particle_steps_per_s"] for r in records if r["what"] == "forward"}
+    print(f"\n{'what':<18}{'particles':>10}{'p-steps/s':>14}{'peak MB':>10}  notes")
+    for r in records:
+        note = ""
+        if r["what"] == "forward":
+            note = f"{r['neighbors_per_particle']:.1f} neighbours/particle"
+        elif r["what"] == "forward_backward":
+            note = f"fwd+bwd / fwd = {r['ratio_to_forward']:.2f}x"
+        elif r["what"] == "rollout_memory":
+            note = f"60 steps, checkpointed={r['checkpointed']}, rollout {r['rollout_bytes'] / 2**20:.0f} MB"
+        elif r["what"] == "peer":
+            mine = min(ours, key=lambda k: abs(k - r["particles"])) if ours else None
+            if mine:
+                note = f"{r.get('peer', 'peer')}; ours/peer = {ours[mine] / r['particle_steps_per_s']:.2f}"
+        print(f"{r['what']:<18}{r['particles']:>10}{r.get('particle_steps_per_s', 0):>14,.0f}"
+              f"{r['peak_mem_bytes'] / 2**20:>10.0f}  {note}")
+
+
+if __name__ == "__main__":
+    main()
