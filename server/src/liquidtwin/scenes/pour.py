@@ -1,7 +1,8 @@
 """Demo scene: a cup pours into a bowl (real sizes, SI units, y up).
 
 Objects (in this order): ``cup`` (inner radius 3.75 cm, 11 cm tall, 3 mm walls), ``bowl``
-(hemispherical, 16 cm wide, 3 mm walls) and ``floor`` (a slab with its top at y = 0). The
+(hemispherical, 16 cm wide, 3 mm walls) and ``floor`` (a 90 cm slab with its top at y = 0
+and a 3 cm rim, so that splashes stay on the table instead of sliding off it). The
 cup starts upright, held beside and above the bowl, filled with ~175 ml of liquid packed at
 rest density. It tilts about the world z axis around its pouring lip, holds, and returns
 upright; bowl and floor stay put.
@@ -31,6 +32,10 @@ WALL = 0.003
 H = 0.011                    # kernel radius; rest spacing 0.55 h ≈ 6 mm
 DT = 1.0 / 120.0
 FILL_ML = 175.0
+FLOOR_HALF = 0.45            # floor slab: 90 cm square, 4 cm thick, rim 2 cm wide, 3 cm high
+FLOOR_DEPTH = 0.04
+FLOOR_RIM = 0.02
+FLOOR_RIM_HEIGHT = 0.03
 
 OBJECT_NAMES = ("cup", "bowl", "floor")
 
@@ -78,6 +83,23 @@ class Trajectory:
         rot = quat_to_matrix(q)
         trans = torch.tensor(self.lip, dtype=torch.float64) - rot @ pivot
         return torch.cat([trans, q])
+
+
+def floor(p: np.ndarray) -> np.ndarray:
+    """SDF of the floor: a slab with its top face at y = 0 and a low rim round its edge."""
+    outer = shapes.box(p, (FLOOR_HALF, 0.5 * (FLOOR_DEPTH + FLOOR_RIM_HEIGHT), FLOOR_HALF),
+                       (0.0, 0.5 * (FLOOR_RIM_HEIGHT - FLOOR_DEPTH), 0.0))
+    inner = FLOOR_HALF - FLOOR_RIM
+    cavity = shapes.box(p, (inner, FLOOR_RIM_HEIGHT, inner), (0.0, FLOOR_RIM_HEIGHT, 0.0))
+    return np.maximum(outer, -cavity)
+
+
+def floor_grid(cell: float = 0.005):
+    """:func:`floor` sampled on a grid (its thinnest part is the 2 cm rim)."""
+    m = 2 * cell
+    return shapes.sample_grid(floor, (-FLOOR_HALF - m, -FLOOR_DEPTH - m, -FLOOR_HALF - m),
+                              (FLOOR_HALF + m, FLOOR_RIM_HEIGHT + m, FLOOR_HALF + m), cell,
+                              min(FLOOR_RIM, FLOOR_DEPTH), "floor")
 
 
 # ------------------------------------------------------------------ containers and volumes
@@ -201,7 +223,7 @@ def build_pour_scene(*, seconds: float | None = None, particles_scale: float = 1
     cell = WALL / 4.0
     objects = [shapes.cup_grid(CUP_RADIUS, CUP_HEIGHT, WALL, cell=cell),
                shapes.bowl_grid(BOWL_RADIUS, WALL, cell=cell),
-               shapes.floor_grid(half_xz=0.4, depth=0.05, cell=0.01)]
+               floor_grid()]
     model = FluidModel.create(h, objects=objects, dt=DT, iterations=4, relaxation=4.0,
                               backend=backend)
 
