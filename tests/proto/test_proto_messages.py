@@ -12,6 +12,11 @@ def _header(seq: int = 7) -> pb.Header:
                      version=lt.PROTOCOL_VERSION)
 
 
+def _object() -> pb.SceneObject:
+    return pb.SceneObject(name="cup", model="mesh", params={"scale": 1.0}, mesh_uri="meshes/cup.stl",
+                          mesh_sha256="ab" * 32, initial_pose=[0, 0.2, 0, 0, 0, 0, 1], container=True)
+
+
 SAMPLES = {
     "Header": _header(),
     "PackedArray": pb.PackedArray(shape=[2, 3], dtype="float32", data=bytes(range(24))),
@@ -22,6 +27,15 @@ SAMPLES = {
         header=_header(8),
         containers=[pb.ContainerVolume(name="source", ml=150.0),
                     pb.ContainerVolume(name="target", ml=62.5)],
+    ),
+    "SceneObject": _object(),
+    "Fill": pb.Fill(container="cup", volume_ml=150.0),
+    "SimulationSettings": pb.SimulationSettings(h=0.011, dt=1 / 120, iterations=4, spacing=0.006),
+    "SceneSpec": pb.SceneSpec(
+        header=_header(0), name="pour_partial", objects=[_object()],
+        fills=[pb.Fill(container="cup", fraction=0.6)],
+        simulation=pb.SimulationSettings(h=0.011, dt=1 / 120, iterations=4, spacing=0.006),
+        motion="pour", motion_params={"tilt_deg": 95.0}, duration_s=6.0, cameras=["cam0"],
     ),
 }
 
@@ -69,6 +83,9 @@ def test_public_names_resolve():
 
 
 def _is_set(message, field) -> bool:
+    oneof = field.containing_oneof
+    if oneof is not None:  # members of a oneof exclude each other: one set is enough
+        return message.WhichOneof(oneof.name) is not None
     if field.is_repeated:
         return len(getattr(message, field.name)) > 0
     if field.type == FieldDescriptor.TYPE_MESSAGE:

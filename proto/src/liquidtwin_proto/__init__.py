@@ -20,7 +20,18 @@ from .keys import (
     validate_prefix,
     validate_session_id,
 )
-from .liquidtwin_pb2 import ContainerVolume, Error, Header, PackedArray, ProtocolVersion, Volumes
+from .liquidtwin_pb2 import (
+    ContainerVolume,
+    Error,
+    Fill,
+    Header,
+    PackedArray,
+    ProtocolVersion,
+    SceneObject,
+    SceneSpec,
+    SimulationSettings,
+    Volumes,
+)
 
 #: Wire-contract version this package speaks; goes into ``Header.version``.
 PROTOCOL_VERSION: int = liquidtwin_pb2.PROTOCOL_VERSION_CURRENT
@@ -34,6 +45,7 @@ __all__ = [
     "DEFAULT_PREFIX",
     "DTYPES",
     "Error",
+    "Fill",
     "Header",
     "IN_STREAMS",
     "Keys",
@@ -45,6 +57,9 @@ __all__ = [
     "ParsedKey",
     "ProtocolVersion",
     "RESERVED_SESSION_IDS",
+    "SceneObject",
+    "SceneSpec",
+    "SimulationSettings",
     "Volumes",
     "liquidtwin_pb2",
     "pack_array",

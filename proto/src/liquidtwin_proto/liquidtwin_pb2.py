@@ -24,7 +24,7 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n!liquidtwin_proto/liquidtwin.proto\x12\rliquidtwin.v1\"L\n\x06Header\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x0b\n\x03seq\x18\x02 \x01(\x04\x12\x10\n\x08stamp_ns\x18\x03 \x01(\x03\x12\x0f\n\x07version\x18\x04 \x01(\r\"9\n\x0bPackedArray\x12\r\n\x05shape\x18\x01 \x03(\r\x12\r\n\x05\x64type\x18\x02 \x01(\t\x12\x0c\n\x04\x64\x61ta\x18\x03 \x01(\x0c\"\xf3\x01\n\x05\x45rror\x12%\n\x06header\x18\x01 \x01(\x0b\x32\x15.liquidtwin.v1.Header\x12\'\n\x04\x63ode\x18\x02 \x01(\x0e\x32\x19.liquidtwin.v1.Error.Code\x12\x0f\n\x07message\x18\x03 \x01(\t\"\x88\x01\n\x04\x43ode\x12\x14\n\x10\x43ODE_UNSPECIFIED\x10\x00\x12\x0f\n\x0b\x42\x41\x44_REQUEST\x10\x01\x12\x13\n\x0fUNKNOWN_SESSION\x10\x02\x12\x17\n\x13UNSUPPORTED_VERSION\x10\x03\x12\r\n\tTOO_LARGE\x10\x04\x12\x0e\n\nNON_FINITE\x10\x05\x12\x0c\n\x08INTERNAL\x10\x06\"+\n\x0f\x43ontainerVolume\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\n\n\x02ml\x18\x02 \x01(\x01\"d\n\x07Volumes\x12%\n\x06header\x18\x01 \x01(\x0b\x32\x15.liquidtwin.v1.Header\x12\x32\n\ncontainers\x18\x02 \x03(\x0b\x32\x1e.liquidtwin.v1.ContainerVolume*m\n\x0fProtocolVersion\x12 \n\x1cPROTOCOL_VERSION_UNSPECIFIED\x10\x00\x12\x16\n\x12PROTOCOL_VERSION_1\x10\x01\x12\x1c\n\x18PROTOCOL_VERSION_CURRENT\x10\x01\x1a\x02\x10\x01\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n!liquidtwin_proto/liquidtwin.proto\x12\rliquidtwin.v1\"L\n\x06Header\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x0b\n\x03seq\x18\x02 \x01(\x04\x12\x10\n\x08stamp_ns\x18\x03 \x01(\x03\x12\x0f\n\x07version\x18\x04 \x01(\r\"9\n\x0bPackedArray\x12\r\n\x05shape\x18\x01 \x03(\r\x12\r\n\x05\x64type\x18\x02 \x01(\t\x12\x0c\n\x04\x64\x61ta\x18\x03 \x01(\x0c\"\xf3\x01\n\x05\x45rror\x12%\n\x06header\x18\x01 \x01(\x0b\x32\x15.liquidtwin.v1.Header\x12\'\n\x04\x63ode\x18\x02 \x01(\x0e\x32\x19.liquidtwin.v1.Error.Code\x12\x0f\n\x07message\x18\x03 \x01(\t\"\x88\x01\n\x04\x43ode\x12\x14\n\x10\x43ODE_UNSPECIFIED\x10\x00\x12\x0f\n\x0b\x42\x41\x44_REQUEST\x10\x01\x12\x13\n\x0fUNKNOWN_SESSION\x10\x02\x12\x17\n\x13UNSUPPORTED_VERSION\x10\x03\x12\r\n\tTOO_LARGE\x10\x04\x12\x0e\n\nNON_FINITE\x10\x05\x12\x0c\n\x08INTERNAL\x10\x06\"+\n\x0f\x43ontainerVolume\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\n\n\x02ml\x18\x02 \x01(\x01\"d\n\x07Volumes\x12%\n\x06header\x18\x01 \x01(\x0b\x32\x15.liquidtwin.v1.Header\x12\x32\n\ncontainers\x18\x02 \x03(\x0b\x32\x1e.liquidtwin.v1.ContainerVolume\"\xe1\x01\n\x0bSceneObject\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\r\n\x05model\x18\x02 \x01(\t\x12\x36\n\x06params\x18\x03 \x03(\x0b\x32&.liquidtwin.v1.SceneObject.ParamsEntry\x12\x10\n\x08mesh_uri\x18\x04 \x01(\t\x12\x13\n\x0bmesh_sha256\x18\x05 \x01(\t\x12\x14\n\x0cinitial_pose\x18\x06 \x03(\x01\x12\x11\n\tcontainer\x18\x07 \x01(\x08\x1a-\n\x0bParamsEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x01:\x02\x38\x01\"L\n\x04\x46ill\x12\x11\n\tcontainer\x18\x01 \x01(\t\x12\x13\n\tvolume_ml\x18\x02 \x01(\x01H\x00\x12\x12\n\x08\x66raction\x18\x03 \x01(\x01H\x00\x42\x08\n\x06\x61mount\"P\n\x12SimulationSettings\x12\t\n\x01h\x18\x01 \x01(\x01\x12\n\n\x02\x64t\x18\x02 \x01(\x01\x12\x12\n\niterations\x18\x03 \x01(\r\x12\x0f\n\x07spacing\x18\x04 \x01(\x01\"\xf5\x02\n\tSceneSpec\x12%\n\x06header\x18\x01 \x01(\x0b\x32\x15.liquidtwin.v1.Header\x12\x0c\n\x04name\x18\x02 \x01(\t\x12+\n\x07objects\x18\x03 \x03(\x0b\x32\x1a.liquidtwin.v1.SceneObject\x12\"\n\x05\x66ills\x18\x04 \x03(\x0b\x32\x13.liquidtwin.v1.Fill\x12\x35\n\nsimulation\x18\x05 \x01(\x0b\x32!.liquidtwin.v1.SimulationSettings\x12\x0e\n\x06motion\x18\x06 \x01(\t\x12\x41\n\rmotion_params\x18\x07 \x03(\x0b\x32*.liquidtwin.v1.SceneSpec.MotionParamsEntry\x12\x12\n\nduration_s\x18\x08 \x01(\x01\x12\x0f\n\x07\x63\x61meras\x18\t \x03(\t\x1a\x33\n\x11MotionParamsEntry\x12\x0b\n\x03key\x18\x01 \x01(\t\x12\r\n\x05value\x18\x02 \x01(\x01:\x02\x38\x01*m\n\x0fProtocolVersion\x12 \n\x1cPROTOCOL_VERSION_UNSPECIFIED\x10\x00\x12\x16\n\x12PROTOCOL_VERSION_1\x10\x01\x12\x1c\n\x18PROTOCOL_VERSION_CURRENT\x10\x01\x1a\x02\x10\x01\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -33,8 +33,12 @@ if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
   _globals['_PROTOCOLVERSION']._loaded_options = None
   _globals['_PROTOCOLVERSION']._serialized_options = b'\020\001'
-  _globals['_PROTOCOLVERSION']._serialized_start=582
-  _globals['_PROTOCOLVERSION']._serialized_end=691
+  _globals['_SCENEOBJECT_PARAMSENTRY']._loaded_options = None
+  _globals['_SCENEOBJECT_PARAMSENTRY']._serialized_options = b'8\001'
+  _globals['_SCENESPEC_MOTIONPARAMSENTRY']._loaded_options = None
+  _globals['_SCENESPEC_MOTIONPARAMSENTRY']._serialized_options = b'8\001'
+  _globals['_PROTOCOLVERSION']._serialized_start=1346
+  _globals['_PROTOCOLVERSION']._serialized_end=1455
   _globals['_HEADER']._serialized_start=52
   _globals['_HEADER']._serialized_end=128
   _globals['_PACKEDARRAY']._serialized_start=130
@@ -47,4 +51,16 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_CONTAINERVOLUME']._serialized_end=478
   _globals['_VOLUMES']._serialized_start=480
   _globals['_VOLUMES']._serialized_end=580
+  _globals['_SCENEOBJECT']._serialized_start=583
+  _globals['_SCENEOBJECT']._serialized_end=808
+  _globals['_SCENEOBJECT_PARAMSENTRY']._serialized_start=763
+  _globals['_SCENEOBJECT_PARAMSENTRY']._serialized_end=808
+  _globals['_FILL']._serialized_start=810
+  _globals['_FILL']._serialized_end=886
+  _globals['_SIMULATIONSETTINGS']._serialized_start=888
+  _globals['_SIMULATIONSETTINGS']._serialized_end=968
+  _globals['_SCENESPEC']._serialized_start=971
+  _globals['_SCENESPEC']._serialized_end=1344
+  _globals['_SCENESPEC_MOTIONPARAMSENTRY']._serialized_start=1293
+  _globals['_SCENESPEC_MOTIONPARAMSENTRY']._serialized_end=1344
 # @@protoc_insertion_point(module_scope)
