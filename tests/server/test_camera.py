@@ -2,6 +2,7 @@
 coverage/mask vs a hand-worked image and a per-particle loop, splats vs a dense formula and
 finite differences, IOU by hand, and the errors bad input gets."""
 
+import json
 import math
 
 import cv2
@@ -463,3 +464,16 @@ def test_cuda_matches_cpu():
     v = visible(cam, x, [cup], IDENTITY)
     vc = visible(cam, x.cuda(), [cup.to("cuda")], IDENTITY.cuda())
     assert vc.device.type == "cuda" and (vc.cpu() != v).sum() <= 2
+
+
+def test_bench_camera_records(tmp_path):
+    from liquidtwin import bench
+    out = tmp_path / "camera.json"
+    bench.main(["--only", "camera", "--threads", "1", "--history", str(tmp_path / "no" / "h.jsonl"),
+                "--out", str(out)])
+    recs = {r["what"]: r for r in json.loads(out.read_text())}
+    assert set(recs) == {"camera_mask", "camera_occlusion", "camera_splat"}
+    for r in recs.values():
+        assert r["particles"] == 8000 and 0 < r["visible_particles"] < 8000
+        assert r["ms"] > 0 and r["peak_mem_bytes"] > 0 and r["commit"] and r["date"]
+    assert not (tmp_path / "no").exists()

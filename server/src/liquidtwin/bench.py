@@ -8,14 +8,18 @@ Records (JSON lines, appended to ``bench/history.jsonl`` when run from the repos
   particles with and without gradient checkpointing (each in a fresh process);
 - ``peer``: a Taichi PBF at the same particle counts when ``bench/peers`` and taichi are
   available (``pip install -r bench/requirements-peers.txt``), with our/peer ratios.
-Each record has ``what``, ``particles``, ``particle_steps_per_s``, ``peak_mem_bytes``,
-``commit``, ``date``.
+- ``camera_mask``, ``camera_occlusion``, ``camera_splat``: model mask + coverage Φ at
+  640×480, occlusion against a cup and a bowl, and a splat forward + backward, for 8k
+  particles (``ms``: median of repeats; ``--device`` picks where they run).
+Each record has ``what``, ``particles``, ``particle_steps_per_s`` (simulation records),
+``peak_mem_bytes``, ``commit``, ``date``. ``--only sim`` / ``--only camera`` runs one group.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import functools
 import json
 import resource
 import subprocess
@@ -129,6 +133,81 @@ def peer(n: int) -> dict | None:
     return res
 
 
+@functools.lru_cache(maxsize=2)
+def _camera_objects(device: str) -> tuple:
+    return shapes.cup_grid().to(device), shapes.bowl_grid().to(device)
+
+
+def _camera_scene(n: int, device: str):
+    """n particles: half in a cup, half in and over a bowl 25 cm away; a camera seeing both."""
+    from .camera import Camera
+    g = torch.Generator().manual_seed(0)
+
+    def rand(k):
+        return torch.rand(k, generator=g)
+    a, b = n // 2, n - n // 2
+    r, th = 0.035 * rand(a) ** 0.5, 6.2832 * rand(a)
+    cup_x = torch.stack([r * th.cos(), 0.004 + 0.07 * rand(a), r * th.sin()], 1)
+    r, th = 0.07 * rand(b), 6.2832 * rand(b)
+    bowl_x = torch.stack([0.25 + r * th.cos(), 0.004 + 0.2 * rand(b), r * th.sin()], 1)
+    objects = list(_camera_objects(device))
+    poses = torch.tensor([[0, 0, 0, 0, 0, 0, 1.0], [0.25, 0, 0, 0, 0, 0, 1.0]], device=device)
+    cam = Camera.look_at((0.12, 0.35, 0.5), (0.12, 0.05, 0), width=640, height=480, fov_y_deg=50)
+    return cam, torch.cat([cup_x, bowl_x]).to(device), objects, poses
+
+
+def _median_ms(fn, repeats: int, device: str) -> float:
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    fn()
+    times = []
+    for _ in range(repeats):
+        sync()
+        t0 = time.perf_counter()
+        fn()
+        sync()
+        times.append(1e3 * (time.perf_counter() - t0))
+    return sorted(times)[len(times) // 2]
+
+
+def _reset_peak_rss() -> None:
+    """Restart VmHWM from the current resident set (Linux), so a peak measures what follows."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+
+
+def camera(what: str, n: int = 8000, device: str = "cpu") -> dict:
+    """One camera record, "camera_mask", "camera_occlusion" or "camera_splat"; ``ms`` is the
+    median wall time of repeats, ``peak_mem_bytes`` the process's peak resident set while
+    timing (the SDF grids are built before the peak is reset)."""
+    from .camera import coverage, model_mask, splat, visible
+    cam, x, objects, poses = _camera_scene(n, device)
+    _reset_peak_rss()
+    vis = visible(cam, x, objects, poses)
+    uv, _ = cam.project(x)
+    H, W = cam.height, cam.width
+    rec = dict(what=what, particles=len(x), visible_particles=int(vis.sum()), width=W, height=H,
+               device=device)
+    if what == "camera_mask":
+        rec.update(ms=_median_ms(lambda: model_mask(uv, vis, H, W, 5), 30, device), radius_px=5,
+                   coverage_ms=_median_ms(lambda: coverage(uv, vis, H, W, 5), 30, device))
+    elif what == "camera_occlusion":
+        rec.update(ms=_median_ms(lambda: visible(cam, x, objects, poses), 7, device),
+                   objects=["cup", "bowl"])
+    else:
+        xg = x.clone().requires_grad_()
+
+        def fwd_bwd():
+            splat(cam.project(xg)[0], vis, H, W, 1.5).sum().backward()
+        rec.update(ms=_median_ms(fwd_bwd, 10, device), sigma_px=1.5,
+                   forward_ms=_median_ms(lambda: splat(uv, vis, H, W, 1.5), 10, device))
+    rec["peak_mem_bytes"] = _vm("VmHWM")
+    if device.startswith("cuda"):
+        rec["cuda_peak_mem_bytes"] = torch.cuda.max_memory_allocated()
+    return rec
+
+
 def _commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
@@ -146,6 +225,10 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
     p.add_argument("--no-memory", action="store_true", help="skip the 60-step memory runs")
     p.add_argument("--no-peer", action="store_true", help="skip the Taichi peer")
+    p.add_argument("--only", choices=["sim", "camera"], default=None,
+                   help="run one group of records (default: all)")
+    p.add_argument("--device", default="cpu",
+                   help="torch device for the camera records (default: cpu)")
     p.add_argument("--out", type=Path, default=None, help="write the records as JSON here")
     p.add_argument("--history", type=Path, default=Path(__file__).resolve().parents[3] / "bench" / "history.jsonl",
                    help="append records to this JSON-lines file (default bench/history.jsonl)")
@@ -159,6 +242,8 @@ def main(argv=None) -> list[dict]:
         jobs += [("rollout_memory", False), ("rollout_memory", True)]
     if not a.no_peer:
         jobs += [("peer", n) for n in a.particles]
+    camera_jobs = [(w, a.device) for w in ("camera_mask", "camera_occlusion", "camera_splat")]
+    jobs = {"camera": camera_jobs, "sim": jobs}.get(a.only, jobs + camera_jobs)
     records = []
     for what, arg in tqdm(jobs, desc="bench", unit="run"):
         if what == "forward":
@@ -167,6 +252,8 @@ def main(argv=None) -> list[dict]:
             r = forward_backward(arg, 10, a.backend)
         elif what == "rollout_memory":
             r = rollout_memory(mem_n, 60, arg, a.backend)
+        elif what.startswith("camera_"):
+            r = camera(what, 8000, arg)
         else:
             r = peer(arg)
             if r is None:
@@ -202,6 +289,11 @@ def _print_table(records):
             mine = min(ours, key=lambda k: abs(k - r["particles"])) if ours else None
             if mine:
                 note = f"{r.get('peer', 'peer')}; ours/peer = {ours[mine] / r['particle_steps_per_s']:.2f}"
+        elif r["what"].startswith("camera_"):
+            extra = {"camera_mask": f", coverage {r.get('coverage_ms', 0):.2f} ms",
+                     "camera_splat": f" fwd+bwd, fwd {r.get('forward_ms', 0):.2f} ms"}
+            extra = extra.get(r["what"], "")
+            note = f"{r['ms']:.2f} ms{extra} on {r['device']}, {r['width']}x{r['height']}"
         print(f"{r['what']:<18}{r['particles']:>10}{r.get('particle_steps_per_s', 0):>14,.0f}"
               f"{r['peak_mem_bytes'] / 2**20:>10.0f}  {note}")
 
