@@ -311,7 +311,7 @@ def test_coverage_hand_case():
     assert int(disc_stencil(2).sum()) == 13
 
 
-@pytest.mark.parametrize("radius", [0, 1.5, 2.5, 5])
+@pytest.mark.parametrize("radius", [0, 1.5, 2.5, 5, 12])
 def test_coverage_and_mask_match_per_particle_loop(radius):
     rng = np.random.default_rng(11)
     H, W = 37, 53

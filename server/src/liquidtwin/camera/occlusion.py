@@ -85,7 +85,7 @@ def segment_blocked(start: torch.Tensor, end: torch.Tensor, objects, poses: torc
     if end.shape != start.shape:
         raise ValueError(f"segment ends must be (3,) or {tuple(start.shape)}, "
                          f"got {tuple(end.shape)}")
-    objects = list(objects)
+    objects = [objects] if isinstance(objects, SDFGrid) else list(objects)
     blocked = torch.zeros(len(start), dtype=torch.bool, device=start.device)
     if not objects or len(start) == 0:
         return blocked
@@ -151,7 +151,7 @@ def visible(camera: Camera, x: torch.Tensor, objects=(), poses: torch.Tensor | N
     x = _check_points(x, "particle positions")
     if not (math.isfinite(margin_px) and math.isfinite(near)):
         raise ValueError("margin_px and near must be finite")
-    objects = list(objects)
+    objects = [objects] if isinstance(objects, SDFGrid) else list(objects)
     if objects and poses is None:
         raise ValueError(f"poses (M, 7) are needed for the {len(objects)} objects")
     seen = in_view(camera, x, margin_px, near)
