@@ -406,6 +406,7 @@ def test_bad_input_raises_clear_value_errors():
         dict(liquid_thickness=thick[:-1]),
         dict(liquid_mask=mask.astype(np.uint8)),
         dict(labels=labels.astype(np.float32)),
+        dict(labels=labels - 1),
         dict(liquid_thickness=-thick),
         dict(liquid_thickness=np.where(mask, np.nan, 0.0)),
         dict(object_colors=colors[:1]),

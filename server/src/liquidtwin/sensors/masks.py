@@ -42,7 +42,7 @@ class MaskNoise:
     miss: float = 0.05
     false: float = 0.005
     ragged_px: float = 1.5
-    blob_px: float = 4.0
+    blob_px: float = 6.0
     speck_share: float = 0.2
 
     NONE: ClassVar["MaskNoise"]

@@ -6,7 +6,9 @@ tints with thickness, reflects and sparkles → camera: exposure, white balance,
 lighting gradient, blur, signal-dependent noise, JPEG artefacts.
 
 For a video, sample ``RGBParams`` (it includes the background's own seed) once per recording
-and pass it to every frame: the scene then stays put and only sensor noise changes.
+and pass it to every frame: the scene then stays put and only sensor noise changes. Passing
+``background=render_texture(params.texture, H, W)`` as well saves re-rendering the texture
+(5–15 ms at 640×480).
 """
 
 from __future__ import annotations
@@ -196,14 +198,14 @@ def _check_maps(thickness, mask, labels):
     check_image_shape("labels", lab, m.shape)
     if not np.isfinite(t).all() or (t < 0).any():
         raise SensorInputError("liquid_thickness must be finite and ≥ 0")
-    if lab.size and lab.min() < 0:
-        raise SensorInputError("labels must be ≥ 0 (0 = background)")
+    if lab.min() < 0 or lab.max() >= 65536:
+        raise SensorInputError("labels must lie in [0, 65535] (0 = background)")
     return t, m, lab.astype(np.intp, copy=False)
 
 
 def _color_table(colors, labels: np.ndarray) -> np.ndarray:
     """(max_label + 1, 3) float32 albedo table; row 0 (background) unused."""
-    top = int(labels.max()) if labels.size else 0
+    top = int(labels.max())
     if isinstance(colors, Mapping):
         keys = list(colors)
         rows = [colors[k] for k in keys]
@@ -242,14 +244,14 @@ def _color_table(colors, labels: np.ndarray) -> np.ndarray:
 
 
 def _as_planes(background, h: int, w: int) -> np.ndarray:
-    """(H, W, 3) uint8 or float [0, 1] image → (3, H, W) float32 planes."""
+    """(H, W, 3) uint8 or float [0, 1] image → (3, H, W) float32 planes (a new array)."""
     b = np.asarray(background)
     check_image_shape("background", b, (h, w, 3))
     if b.dtype == np.uint8:
-        return b.transpose(2, 0, 1).astype(np.float32) * np.float32(1.0 / 255.0)
-    if b.dtype.kind != "f" or not np.isfinite(b).all() or b.min() < 0 or b.max() > 1:
+        return np.stack(cv2.split(b)).astype(np.float32) * np.float32(1.0 / 255.0)
+    if b.dtype.kind != "f" or not (b.min() >= 0 and b.max() <= 1):   # NaN fails both
         raise SensorInputError(f"background must be uint8 or float in [0, 1], got {b.dtype}")
-    return np.array(b.transpose(2, 0, 1), dtype=np.float32, order="C", copy=True)
+    return np.stack(cv2.split(b.astype(np.float32, copy=False)))
 
 
 def _camera(img: np.ndarray, rng: np.random.Generator, p: RGBParams) -> np.ndarray:
