@@ -97,12 +97,28 @@ def corrupt_mask(mask: np.ndarray, rng: np.random.Generator, noise: MaskNoise | 
 
 
 def _corrupt_frame(mask: np.ndarray, rng: np.random.Generator, nz: MaskNoise) -> np.ndarray:
-    out = _ragged(mask, rng, nz.ragged_px) if nz.ragged_px > 0 else mask.copy()
-    if nz.miss > 0:
-        out[_pick(mask, rng, nz.miss, nz.blob_px, nz.speck_share)] = False
+    out = mask.copy()
+    if nz.ragged_px > 0 and mask.any():   # nothing farther than 3·ragged_px + 1 from the liquid can change
+        y0, y1, x0, x1 = _box(mask, int(np.ceil(3 * nz.ragged_px)) + 2)
+        out[y0:y1, x0:x1] = _ragged(mask[y0:y1, x0:x1], rng, nz.ragged_px)
+    if nz.miss > 0 and mask.any():
+        y0, y1, x0, x1 = _box(mask, 0)
+        win = out[y0:y1, x0:x1]
+        win[_pick(mask[y0:y1, x0:x1], rng, nz.miss, nz.blob_px, nz.speck_share)] = False
     if nz.false > 0:
         out[_pick(~mask, rng, nz.false, nz.blob_px, nz.speck_share)] = True
     return out
+
+
+def _box(mask: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1): bounding box of ``mask`` grown by ``margin`` px, clipped to the image.
+
+    Cropping to it is exact for the distance transforms below: the crop holds all liquid, and
+    unless it touches the image border it has a dry rim of ≥ 2 px.
+    """
+    x, y, bw, bh = cv2.boundingRect(mask.view(np.uint8))
+    h, w = mask.shape
+    return max(0, y - margin), min(h, y + bh + margin), max(0, x - margin), min(w, x + bw + margin)
 
 
 def _ragged(mask: np.ndarray, rng: np.random.Generator, ragged_px: float) -> np.ndarray:
