@@ -98,7 +98,7 @@ def corrupt_mask(mask: np.ndarray, rng: np.random.Generator, noise: MaskNoise | 
 
 def _corrupt_frame(mask: np.ndarray, rng: np.random.Generator, nz: MaskNoise) -> np.ndarray:
     out = mask.copy()
-    if nz.ragged_px > 0 and mask.any():   # nothing farther than 3·ragged_px + 1 from the liquid can change
+    if nz.ragged_px > 0 and mask.any():   # nothing beyond 3·ragged_px + 1 of the liquid changes
         y0, y1, x0, x1 = _box(mask, int(np.ceil(3 * nz.ragged_px)) + 2)
         out[y0:y1, x0:x1] = _ragged(mask[y0:y1, x0:x1], rng, nz.ragged_px)
     if nz.miss > 0 and mask.any():
