@@ -1,0 +1,234 @@
+"""Fill a container with liquid to a stated volume or fraction, settled (SPEC §2).
+
+Particles are placed at rest spacing (:func:`~liquidtwin.sim.packing.lattice`) inside the
+container's cavity, lowest first, clear of every object, and left to settle with the
+objects static. Settled PBF liquid packs much denser than the rest lattice (measured: a cup
+4–7.5 cm wide at h = 1.1 cm settles to about half the height its rest lattice had), so the
+settled volume is measured (:mod:`.liquid_level`: the cavity's volume below the liquid's
+free surface) and particles are added on top (new rest-lattice sites clear of the liquid)
+or skimmed off the top, and the liquid settled again, until the settled volume is within
+``tolerance`` of the asked one. ``FillReport.particle_volume_ml`` converts counts of
+settled particles to ml.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..geometry import ObjectModel
+from ..sim import FluidModel, FluidState, find_neighbors, lattice, make_state, min_sdf, rollout
+from .liquid_level import held, marginal_ml, rotation, settled_volume, surface_height
+
+__all__ = ["FillReport", "fill_container", "held", "settled_volume", "surface_height"]
+
+
+@dataclass(frozen=True)
+class FillReport:
+    """Outcome of :func:`fill_container`.
+
+    Attributes:
+      asked_ml: the volume asked for, ml.
+      particles: particles in the returned state (all held by the container).
+      particle_volume_ml: settled volume per particle, ml (particles × this = settled_ml).
+      settled_ml: measured settled volume, ml.
+      height_m: object-frame height of the settled surface, m.
+      iterations: fills simulated (1 = the first count was already within tolerance).
+      dropped: particles that ended outside the cavity (rim, splashes) and were removed.
+      rest_particle_ml: volume per particle in the rest lattice, ml, for comparison.
+    """
+
+    asked_ml: float
+    particles: int
+    particle_volume_ml: float
+    settled_ml: float
+    height_m: float
+    iterations: int
+    dropped: int = 0
+    rest_particle_ml: float = 0.0
+
+
+def fill_container(model: FluidModel, poses, index: int, obj: ObjectModel, *,
+                   volume_ml: float | None = None, fraction: float | None = None,
+                   settle_s: float = 1.0, tolerance: float = 0.03, max_iterations: int = 6,
+                   clearance: float | None = None, progress: bool = False,
+                   dtype=torch.float32) -> tuple[FluidState, FillReport]:
+    """Fill container ``index`` of a scene with settled liquid.
+
+    Args:
+      model: the scene's :class:`FluidModel`; ``model.objects[index]`` is the container's SDF.
+      poses: (M, 7) object poses (tx ty tz qx qy qz qw); the container must be upright
+        (its +y within 2° of the world's +y). Objects stay static while settling.
+      index: which object is the container.
+      obj: its :class:`ObjectModel` (cavity and volume function).
+      volume_ml: liquid to put in, ml; or ``fraction`` of the capacity in (0, 1].
+      settle_s: simulated settling time of the first fill, s (top-ups settle half as long).
+      tolerance: relative error allowed on the settled volume.
+      max_iterations: fills to simulate before giving up (with a RuntimeWarning).
+      clearance: initial distance of particle centres from all surfaces, m (default half a
+        rest spacing).
+      progress: show a progress bar over the settling steps.
+    Returns:
+      (state holding only the container's particles, with their velocities and ``poses``;
+      FillReport).
+    Raises:
+      ValueError: bad arguments, a fill beyond the capacity (stated in ml), a container
+        that is not upright, or too little room to place the particles.
+    """
+    poses = _check_inputs(model, poses, index, obj)
+    volume_ml = _asked_ml(obj, volume_ml, fraction)
+    if not (settle_s > 0 and tolerance > 0 and max_iterations >= 1):
+        raise ValueError("settle_s and tolerance must be > 0 and max_iterations >= 1")
+    clearance = 0.5 * model.spacing if clearance is None else float(clearance)
+    sites = _candidates(model, poses, index, obj, clearance)
+    R, t = rotation(poses[index]), poses[index, :3].to(torch.float64).numpy()
+    rest_ml = model.particle_volume * 1e6
+    steps = max(1, int(round(settle_s / model.dt)))
+    local = _take(sites, np.zeros((0, 3)), int(round(volume_ml / rest_ml)), model, obj.name)
+    vel = np.zeros_like(local)                                   # world frame, m/s
+    history = {}
+    for iteration in range(1, max_iterations + 1):
+        state = make_state(local @ R.T + t, vel, poses=poses, dtype=dtype)
+        n_steps = steps if iteration == 1 else max(1, steps // 2)    # top-ups start near rest
+        state = _settle(model, state, n_steps, progress, f"{obj.name} fill {iteration}")
+        ml, height, mask = settled_volume(model, state, index, obj)
+        count = int(mask.sum())
+        history[count] = ml
+        if abs(ml - volume_ml) <= tolerance * volume_ml:
+            break
+        local = (state.x.detach().double().numpy()[mask] - t) @ R
+        want = _next_count(history, volume_ml, count, marginal_ml(local, height, obj))
+        if want == count or iteration == max_iterations:
+            break
+        vel = state.v.detach().double().numpy()[mask]
+        if want > count:        # top up: rest-lattice sites clear of the settled liquid
+            more = _take(sites, local, want - count, model, obj.name)
+            local, vel = np.concatenate([local, more]), np.concatenate([vel, np.zeros_like(more)])
+        else:                   # skim the highest particles off
+            keep = np.argsort(local[:, 1], kind="stable")[:want]
+            local, vel = local[keep], vel[keep]
+    if abs(ml - volume_ml) > tolerance * volume_ml:
+        off = 100 * (ml / volume_ml - 1)
+        warnings.warn(f"{obj.name}: settled volume {ml:.1f} ml is {off:+.1f} % from the asked "
+                      f"{volume_ml:.1f} ml after {iteration} fills", RuntimeWarning, stacklevel=2)
+    keep = torch.as_tensor(mask)
+    out = make_state(state.x.detach()[keep], state.v.detach()[keep], poses=poses, dtype=dtype)
+    report = FillReport(volume_ml, int(mask.sum()), ml / int(mask.sum()), ml, height, iteration,
+                        int((~mask).sum()), rest_ml)
+    return out, report
+
+
+def _check_inputs(model: FluidModel, poses, index: int, obj: ObjectModel) -> torch.Tensor:
+    if not isinstance(poses, torch.Tensor):
+        poses = torch.as_tensor(np.asarray(poses, dtype=np.float64))
+    n = len(model.objects)
+    if poses.dim() != 2 or poses.shape != (n, 7):
+        raise ValueError(f"poses must be ({n}, 7), one per model object; got {tuple(poses.shape)}")
+    if not bool(torch.isfinite(poses).all()):
+        raise ValueError("poses contain NaN or inf")
+    if not 0 <= index < n:
+        raise ValueError(f"index {index} is not an object of the model ({n} objects)")
+    if not obj.is_container:
+        raise ValueError(f"{obj.name} is not a container: it has no cavity to fill")
+    up = rotation(poses[index])[1, 1]
+    if up < math.cos(math.radians(2.0)):
+        raise ValueError(f"{obj.name} is tilted {math.degrees(math.acos(min(1.0, up))):.1f}° from "
+                         f"upright; fill it upright, then move it")
+    return poses
+
+
+def _asked_ml(obj: ObjectModel, volume_ml, fraction) -> float:
+    if (volume_ml is None) == (fraction is None):
+        raise ValueError("give exactly one of volume_ml or fraction")
+    if fraction is not None:
+        if not (math.isfinite(fraction) and 0 < fraction <= 1):
+            raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+        volume_ml = fraction * obj.capacity_ml
+    volume_ml = float(volume_ml)
+    if not (math.isfinite(volume_ml) and volume_ml > 0):
+        raise ValueError(f"volume_ml must be a positive number of ml, got {volume_ml}")
+    if volume_ml > obj.capacity_ml:
+        raise ValueError(f"{obj.name} holds at most {obj.capacity_ml:.1f} ml to the rim; "
+                         f"cannot fill {volume_ml:.1f} ml")
+    return volume_ml
+
+
+def _candidates(model: FluidModel, poses: torch.Tensor, index: int, obj: ObjectModel,
+                clearance: float) -> np.ndarray:
+    """Rest-lattice sites (K, 3), object frame, in the cavity or in the column above its
+    opening, clear of all objects by ``clearance`` m; lowest first, ties in a fixed order."""
+    s = model.spacing
+    lo, hi = obj.cavity.bounds
+    rim = obj.rim_height
+    pts = lattice(lo, [hi[0], rim + max(0.5 * (rim - lo[1]), 4 * s), hi[2]], s)
+    probe = pts.copy()
+    probe[:, 1] = np.minimum(probe[:, 1], rim - 1e-9)           # above the rim: the opening
+    pts = pts[obj.in_cavity(probe)]
+    world = pts @ rotation(poses[index]).T + poses[index, :3].to(torch.float64).numpy()
+    objects = [o.to(dtype=torch.float64) for o in model.objects]
+    dist = min_sdf(torch.as_tensor(world), objects, poses.to(torch.float64)).numpy()
+    pts = pts[dist > clearance]
+    tie = np.random.default_rng(0).permutation(len(pts))
+    return pts[np.lexsort((tie, np.round(pts[:, 1], 9)))]
+
+
+def _take(sites: np.ndarray, liquid: np.ndarray, n: int, model: FluidModel,
+          name: str) -> np.ndarray:
+    """The ``n`` lowest sites (K, 3) at least 0.9 spacing from every particle of ``liquid``
+    (L, 3), object frame, m."""
+    free = np.ones(len(sites), bool)
+    if len(liquid):
+        nb = find_neighbors(torch.as_tensor(sites), torch.as_tensor(liquid, dtype=torch.float64),
+                            0.9 * model.spacing)
+        free = (nb.counts() == 0).numpy()
+    avail = sites[free]
+    if n > len(avail):
+        ml = len(avail) * model.particle_volume * 1e6
+        raise ValueError(f"cannot place {n} more particles in {name}: only {len(avail)} "
+                         f"rest-lattice sites are free in and above its cavity, clear of the "
+                         f"walls (≈ {ml:.0f} ml at rest spacing); ask for less or use a finer "
+                         f"resolution")
+    return avail[:n]
+
+
+def _next_count(history: dict, target: float, last: int, marginal: float) -> int:
+    """Next particle count from the history {count: settled ml}.
+
+    Once counts on both sides of the target are known, interpolate between the closest
+    two. Before that, step from the last count at a slope (ml per particle) between two
+    estimates — the mean over the liquid (too small while the floor layers still compact)
+    and the ``marginal`` one of its upper half (too large once new weight compacts the
+    layers below): their average, or the secant of two counts on the same side, clamped.
+    """
+    pts = sorted(history.items())
+    lower = [p for p in pts if p[1] < target]
+    upper = [p for p in pts if p[1] > target]
+    if lower and upper:
+        (n1, v1), (n2, v2) = lower[-1], upper[0]
+        return max(4, int(round(n1 + (target - v1) * (n2 - n1) / (v2 - v1))))
+    v = history[last]
+    lo, hi = sorted([v / last, marginal])
+    slope = 0.5 * (lo + hi)
+    if len(pts) >= 2:
+        (n1, v1), (n2, v2) = (pts[-2], pts[-1]) if v < target else (pts[0], pts[1])
+        if n2 != n1 and v2 != v1:
+            slope = min(max((v2 - v1) / (n2 - n1), lo), hi)
+    return max(4, int(round(last + (target - v) / slope)))
+
+
+def _settle(model: FluidModel, state: FluidState, steps: int, progress: bool,
+            what: str) -> FluidState:
+    callback, bar = None, None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=steps, desc=what, unit="step")
+        callback = lambda i, s: bar.update(1)  # noqa: E731
+    with torch.no_grad():
+        state, _ = rollout(model, state, None, steps, keep=False, callback=callback)
+    if bar is not None:
+        bar.close()
+    return state
