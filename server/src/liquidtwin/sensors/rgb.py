@@ -248,10 +248,12 @@ def _as_planes(background, h: int, w: int) -> np.ndarray:
     b = np.asarray(background)
     check_image_shape("background", b, (h, w, 3))
     if b.dtype == np.uint8:
-        return np.stack(cv2.split(b)).astype(np.float32) * np.float32(1.0 / 255.0)
+        planes = b.transpose(2, 0, 1).astype(np.float32)
+        planes *= np.float32(1.0 / 255.0)
+        return planes
     if b.dtype.kind != "f" or not (b.min() >= 0 and b.max() <= 1):   # NaN fails both
         raise SensorInputError(f"background must be uint8 or float in [0, 1], got {b.dtype}")
-    return np.stack(cv2.split(b.astype(np.float32, copy=False)))
+    return b.transpose(2, 0, 1).astype(np.float32, order="C")
 
 
 def _camera(img: np.ndarray, rng: np.random.Generator, p: RGBParams) -> np.ndarray:
