@@ -84,7 +84,7 @@ def test_contains_matches_an_analytic_sphere():
 
 CAPACITY_ML = {        # typical household sizes: (low, high) ml to the rim
     "cup": (330, 430), "bottle": (550, 800), "mug": (300, 420), "bowl": (700, 1000),
-    "fruit_bowl": (2500, 3500), "dog_dish": (800, 1200), "pan": (1700, 2400), "plate": (250, 500),
+    "fruit_bowl": (2500, 3500), "dog_dish": (800, 1200), "pan": (1400, 2400), "plate": (250, 500),
     "ladle": (100, 160), "basin": (7000, 7400),
 }
 VARIANTS = [(n, {}) for n in sorted(g.MODELS)] + [

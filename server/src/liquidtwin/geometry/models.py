@@ -181,9 +181,9 @@ def fruit_bowl(radius: float = 0.12, depth: float = 0.085, base_radius: float = 
 
 
 def dog_dish(radius: float = 0.09, depth: float = 0.05, base_radius: float = 0.07,
-             flange: float = 0.02, wall: float = 0.002) -> ObjectModel:
-    """Steel dog dish (target): sloped wall from 14 to 18 cm wide, 5 cm deep, a 2 cm flat
-    flange round the rim, 2 mm sheet; holds ≈ 1 l."""
+             flange: float = 0.02, wall: float = 0.003) -> ObjectModel:
+    """Plastic dog dish (target): sloped wall from 14 to 18 cm wide, 5 cm deep, a 2 cm flat
+    flange round the rim, 3 mm walls; holds ≈ 1 l."""
     _check("dog_dish", radius=radius, depth=depth, base_radius=base_radius, flange=flange,
            wall=wall)
     if base_radius >= radius:
@@ -193,10 +193,10 @@ def dog_dish(radius: float = 0.09, depth: float = 0.05, base_radius: float = 0.0
     return _revolved("dog_dish", inner, wall, rim=len(bowl_part) - 1)
 
 
-def pan(radius: float = 0.12, depth: float = 0.045, wall: float = 0.003,
-        handle_length: float = 0.18) -> ObjectModel:
-    """Pan (target): 24 cm inside, 4.5 cm deep, 3 mm walls, a straight handle on +x rising
-    10°; holds ≈ 2 l."""
+def pan(radius: float = 0.11, depth: float = 0.045, wall: float = 0.004,
+        handle_length: float = 0.14) -> ObjectModel:
+    """Cast pan (target): 22 cm inside, 4.5 cm deep, 4 mm walls, a 14 cm handle on +x
+    rising 10°; holds ≈ 1.7 l."""
     _check("pan", radius=radius, depth=depth, wall=wall, handle_length=handle_length)
     rows, n = 2, max(4, round(depth / 0.005))
     wall_pts = np.stack([np.full(n, radius), wall + depth * np.arange(1, n + 1) / n], 1)
@@ -228,10 +228,10 @@ def plate(radius: float = 0.13, base_radius: float = 0.08, rim_height: float = 0
     return _revolved("plate", inner, wall, rim=rim, sections=96)
 
 
-def ladle(radius: float = 0.036, depth: float = 0.032, band: float = 0.012, wall: float = 0.0025,
+def ladle(radius: float = 0.036, depth: float = 0.032, band: float = 0.012, wall: float = 0.003,
           handle_length: float = 0.2, handle_angle_deg: float = 65.0) -> ObjectModel:
     """Soup ladle (source and scoop): half-ellipsoid bowl 7.2 cm wide inside, 3.2 cm deep, a
-    1.2 cm vertical band to the rim, 2.5 mm walls, a flat handle leaving at +x and rising
+    1.2 cm vertical band to the rim, 3 mm walls, a flat handle leaving at +x and rising
     at 65°; holds ≈ 135 ml."""
     _check("ladle", radius=radius, depth=depth, band=band, wall=wall, handle_length=handle_length)
     rows, n = 2, 4
