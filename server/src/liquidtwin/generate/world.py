@@ -1,0 +1,135 @@
+"""The generator's "world": the true physics behind a recording.
+
+The world runs the same SPNets step as liquidtwin, but with its own settings — more solver
+iterations and fluid parameters jittered away from liquidtwin's defaults (a real liquid never
+matches the model's defaults) — plus the hidden effect, applied as a term, a geometry edit or
+a changed initial fill. Observation effects (time and camera offsets) are applied later, by
+the generator, to what the sensors report.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from ..scenes.fill import fill_container
+from ..sim import SDFGrid, FluidModel, QuadraticDrag, UniformAcceleration, WallAdhesion, carve, cylinder_sdf, solidify, step
+from .effects import Effect
+
+#: liquidtwin's model settings for generated scenes (what a server would use).
+MODEL_ITERATIONS = 4
+MODEL_RELAXATION = 4.0
+#: The world solves its constraints more thoroughly than the model.
+WORLD_ITERATIONS = 6
+
+
+@dataclass(frozen=True)
+class World:
+    """Everything needed to simulate the truth.
+
+    Attributes:
+      model: the world's FluidModel (objects possibly edited by the effect, extra terms).
+      filler: the same world without the effect's terms and edits, used to settle the fill.
+      params: the world's fluid parameters (dict, for the truth file).
+      fill_ml: {container: true initial volume, ml}; stated_ml: what the recording states.
+      effects: the hidden effects (usually none or one).
+    """
+
+    model: FluidModel
+    filler: FluidModel
+    params: dict
+    fill_ml: dict
+    stated_ml: dict
+    effects: tuple
+
+
+def world_params(rng: np.random.Generator, defaults: dict) -> dict:
+    """Fluid parameters of a real liquid: liquidtwin's defaults each jittered by ±5–15 %."""
+    out = {}
+    for k in ("lambda_c", "lambda_v"):
+        sign = 1.0 if rng.random() < 0.5 else -1.0
+        out[k] = float(defaults[k] * (1.0 + sign * rng.uniform(0.05, 0.15)))
+    return out
+
+
+def build_world(setup, effects, rng: np.random.Generator) -> World:
+    """The world model for a scene ``setup`` (``generate.catalog.Setup``) and its hidden
+    ``effects`` (a sequence of :class:`Effect`, usually zero or one)."""
+    objects = [o.grid for o in setup.objects]
+    base = FluidModel.create(setup.h, dt=setup.dt, iterations=WORLD_ITERATIONS, relaxation=MODEL_RELAXATION,
+                             objects=objects)
+    params = world_params(rng, base.params.as_dict())
+    terms = []
+    stated = dict(setup.fills)
+    fill = dict(stated)
+    for effect in effects:
+        v = effect.value
+        if effect.name == "drag":
+            terms.append(QuadraticDrag(torch.tensor(v)))
+        elif effect.name == "wind":
+            az = math.radians(effect.extra["azimuth_deg"])
+            terms.append(UniformAcceleration(torch.tensor([v * math.cos(az), 0.0, v * math.sin(az)])))
+        elif effect.name == "viscosity":
+            params["lambda_v"] = v
+        elif effect.name == "cohesion":
+            params["lambda_c"] = v
+        elif effect.name == "wall_adhesion":
+            terms.append(WallAdhesion(torch.tensor(v), base.spacing))
+        elif effect.name == "leak":
+            index, cut = setup.leak_site(v, effect.extra)
+            objects[index] = carve(objects[index], cut)
+        elif effect.name == "blockage":
+            if setup.blockage_site is None:
+                raise ValueError(f"scene {setup.name!r} has no spout or pipe leg that can be blocked")
+            index, solid = setup.blockage_site(v, effect.extra)
+            objects[index] = solid if isinstance(solid, SDFGrid) else solidify(objects[index], solid)
+        elif effect.name == "fill_error":
+            fill = {k: ml * (1.0 + v) for k, ml in fill.items()}
+    model = base.replace(objects=tuple(objects), terms=tuple(terms)).with_params(**params)
+    # Containers are filled and settled before the effect starts (a leak opens, wind rises).
+    filler = base.with_params(**params)
+    return World(model, filler, model.params.as_dict(), fill, stated, tuple(effects))
+
+
+def initial_state(world: World, setup, *, progress: bool = False):
+    """Fill the scene's containers (true volumes) and settle; returns (state, fill reports)."""
+    poses = torch.as_tensor(setup.poses_at(0.0))
+    reports = {}
+    state = None
+    for name, ml in world.fill_ml.items():
+        index = setup.index(name)
+        obj = setup.objects[index].model
+        s, report = fill_container(world.filler, poses, index, obj, volume_ml=ml, progress=progress,
+                                   settle_s=0.5 if setup.quick else 1.0)
+        reports[name] = report
+        state = s if state is None else _merge(state, s)
+    if state is None:
+        raise ValueError(f"scene {setup.name!r} has no liquid")
+    return state, reports
+
+
+def _merge(a, b):
+    from ..sim import make_state
+    x = torch.cat([a.by_id()[0], b.by_id()[0]])
+    v = torch.cat([a.by_id()[1], b.by_id()[1]])
+    return make_state(x, v, poses=a.poses, dtype=a.x.dtype, t=a.t)
+
+
+def simulate(world: World, setup, state, steps: int, *, progress: bool = False) -> np.ndarray:
+    """Run the world; returns particle positions by id before each step and after the
+    last: (steps + 1, N, 3) float32, m (row k is time k·dt)."""
+    out = np.empty((steps + 1,) + tuple(state.x.shape), np.float32)
+    out[0] = state.by_id()[0].detach().numpy()
+    bar = tqdm(total=steps, desc=f"world {setup.name}", unit="step", disable=not progress, leave=False)
+    with torch.no_grad():
+        for k in range(steps):
+            poses = torch.as_tensor(setup.poses_at((k + 1) * setup.dt), dtype=state.x.dtype)
+            state = step(world.model, state, poses)
+            out[k + 1] = state.by_id()[0].numpy()
+            bar.update()
+    bar.close()
+    return out
