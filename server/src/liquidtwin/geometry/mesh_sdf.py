@@ -32,7 +32,7 @@ from ..sim.sdf import SDFGrid
 FORMAT_VERSION = 1
 DEFAULT_MAX_NODES = 8_000_000
 _LEAF = 4  # leaf boxes of _LEAF³ nodes are evaluated node by node
-_CHUNK = 1 << 15  # point–triangle pairs per chunk on CPU (fits the cache); ×64 on GPUs
+_CHUNK = 1 << 16  # point–triangle pairs per chunk and CPU thread (fits the cache); ×64 on GPUs
 
 
 def _tri_frames(tri: torch.Tensor) -> torch.Tensor:
@@ -47,12 +47,11 @@ def _tri_frames(tri: torch.Tensor) -> torch.Tensor:
     idx = (lengths.argmax(1)[:, None] + torch.arange(3, device=tri.device)) % 3
     a, b, c = tri.gather(1, idx[..., None].expand(-1, -1, 3)).unbind(1)
     L = (b - a).norm(dim=-1, keepdim=True)
-    x_axis = torch.tensor([1.0, 0.0, 0.0], dtype=tri.dtype, device=tri.device).expand_as(a)
-    U = torch.where(L > 0, (b - a) / L.clamp_min(1e-30), x_axis)
+    eye = torch.eye(3, dtype=tri.dtype, device=tri.device)
+    U = torch.where(L > 0, (b - a) / L.clamp_min(1e-30), eye[0])
     n = torch.linalg.cross(b - a, c - a)
     degenerate = n.norm(dim=-1, keepdim=True) <= 1e-12 * L**2
-    axis = torch.eye(3, dtype=tri.dtype, device=tri.device)[U.abs().argmin(1)]
-    W = torch.where(degenerate, torch.linalg.cross(U, axis), n)
+    W = torch.where(degenerate, torch.linalg.cross(U, eye[U.abs().argmin(1)]), n)
     W = W / W.norm(dim=-1, keepdim=True)
     V = torch.linalg.cross(W, U)
     cu, cv = ((c - a) * U).sum(-1, keepdim=True), ((c - a) * V).sum(-1, keepdim=True)
@@ -68,14 +67,10 @@ def _frame_dist2(u, v, w, t: torch.Tensor) -> torch.Tensor:
     L, cu, cv, inv1, inv2, gate = (t[:, i, None] for i in range(12, 18))
     du = u - u.clamp(min=0.0).minimum(L)
     best = du * du + v * v  # edge a→b lies on the u axis
-    qu = u - L  # edge b→c, direction (cu − L, cv)
-    s = ((qu * (cu - L) + v * cv) * inv1).clamp_(0.0, 1.0)
-    ru, rv = qu - s * (cu - L), v - s * cv
-    best = torch.minimum(best, ru * ru + rv * rv)
-    qu, qv = u - cu, v - cv  # edge c→a, direction (−cu, −cv)
-    s = ((qu * cu + qv * cv) * -inv2).clamp_(0.0, 1.0)
-    ru, rv = qu + s * cu, qv + s * cv
-    best = torch.minimum(best, ru * ru + rv * rv)
+    for qu, qv, eu, ev, inv in ((u - L, v, cu - L, cv, inv1), (u - cu, v - cv, -cu, -cv, inv2)):
+        s = ((qu * eu + qv * ev) * inv).clamp_(0.0, 1.0)  # edges b→c and c→a
+        ru, rv = qu - s * eu, qv - s * ev
+        best = torch.minimum(best, ru * ru + rv * rv)
     inside = (v >= gate) & ((u - L) * cv + v * (L - cu) <= 0) & (u * cv - v * cu >= 0)
     return torch.where(inside, 0.0, best) + w * w
 
@@ -91,7 +86,8 @@ def _pair_dist2(centres, offsets, frames, pair_box, pair_tri, out=None, node_ind
     """Squared distances from nodes centres[pair_box] + offsets ((B, 3), (S, 3), m) to triangles
     frames[pair_tri], in memory-bounded chunks → (n_pairs, S) m²; or, given out (flat, m²) and
     node_index (B, S) (flat index of each node), min-reduced into out."""
-    res, step = [], max(1, _CHUNK * (64 if centres.is_cuda else 1) // len(offsets))
+    scale = 64 if centres.is_cuda else torch.get_num_threads()  # small chunks starve threads
+    res, step = [], max(1, _CHUNK * scale // len(offsets))
     for i in range(0, len(pair_box), step):
         box, t = pair_box[i:i + step], frames[pair_tri[i:i + step]]
         rot = t[:, 3:12].reshape(-1, 3, 3)
@@ -265,6 +261,7 @@ def _load(path: Path, origin: np.ndarray, shape, cell: float, thickness: float):
     """Cached values or None if absent; an unreadable or mismatched file warns and gives None."""
     if not path.exists():
         return None
+    problem = "does not match its key"
     try:
         with np.load(path, allow_pickle=False) as z:
             values = z["values"]
@@ -272,7 +269,6 @@ def _load(path: Path, origin: np.ndarray, shape, cell: float, thickness: float):
                     and float(z["cell"]) == cell and float(z["thickness"]) == thickness
                     and np.isfinite(values).all()):
                 return values
-        problem = "does not match its key"
     except Exception as err:  # noqa: BLE001 - whatever is wrong with the file, rebuild it
         problem = f"is unreadable ({err!r})"
     warnings.warn(f"SDF cache file {path} {problem}; rebuilding it", stacklevel=3)
@@ -280,22 +276,19 @@ def _load(path: Path, origin: np.ndarray, shape, cell: float, thickness: float):
 
 
 def _save(path: Path, values: np.ndarray, origin: np.ndarray, cell: float, thickness: float):
-    """Write the .npz atomically (a temporary file in the same folder, then rename); an
-    unwritable cache only warns."""
+    """Write the .npz atomically: a temporary file in the same folder, renamed when complete
+    (readers never see a partial file). An unwritable cache only warns."""
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, values=values, origin=origin, cell=np.float64(cell),
-                     thickness=np.float64(thickness))
-            fh.flush()
-            os.fsync(fh.fileno())
+            np.savez(fh, values=values, origin=origin, cell=cell, thickness=thickness)
         os.replace(tmp, path)
     except OSError as err:
         warnings.warn(f"could not write SDF cache {path}: {err}", stacklevel=3)
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
 
 
 def mesh_sdf_grid(mesh, thickness: float, cell: float | None = None, margin: float | None = None,
