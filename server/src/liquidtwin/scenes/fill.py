@@ -22,7 +22,7 @@ import torch
 
 from ..geometry import ObjectModel
 from ..sim import FluidModel, FluidState, find_neighbors, lattice, make_state, min_sdf, rollout
-from .liquid_level import held, marginal_ml, rotation, settled_volume, surface_height
+from .liquid_level import held, rotation, settled_volume, surface_height
 
 __all__ = ["FillReport", "fill_container", "held", "settled_volume", "surface_height"]
 
@@ -90,7 +90,7 @@ def fill_container(model: FluidModel, poses, index: int, obj: ObjectModel, *,
     steps = max(1, int(round(settle_s / model.dt)))
     local = _take(sites, np.zeros((0, 3)), int(round(volume_ml / rest_ml)), model, obj.name)
     vel = np.zeros_like(local)                                   # world frame, m/s
-    history = {}
+    history, best = {}, None
     for iteration in range(1, max_iterations + 1):
         state = make_state(local @ R.T + t, vel, poses=poses, dtype=dtype)
         n_steps = steps if iteration == 1 else max(1, steps // 2)    # top-ups start near rest
@@ -98,12 +98,12 @@ def fill_container(model: FluidModel, poses, index: int, obj: ObjectModel, *,
         ml, height, mask = settled_volume(model, state, index, obj)
         count = int(mask.sum())
         history[count] = ml
-        if abs(ml - volume_ml) <= tolerance * volume_ml:
+        if best is None or abs(ml - volume_ml) < abs(best[1] - volume_ml):
+            best = (state, ml, height, mask, iteration)
+        want = _next_count(history, volume_ml, count)
+        if abs(ml - volume_ml) <= tolerance * volume_ml or want is None:
             break
         local = (state.x.detach().double().numpy()[mask] - t) @ R
-        want = _next_count(history, volume_ml, count, marginal_ml(local, height, obj))
-        if want == count or iteration == max_iterations:
-            break
         vel = state.v.detach().double().numpy()[mask]
         if want > count:        # top up: rest-lattice sites clear of the settled liquid
             more = _take(sites, local, want - count, model, obj.name)
@@ -111,10 +111,12 @@ def fill_container(model: FluidModel, poses, index: int, obj: ObjectModel, *,
         else:                   # skim the highest particles off
             keep = np.argsort(local[:, 1], kind="stable")[:want]
             local, vel = local[keep], vel[keep]
+    state, ml, height, mask, _ = best
     if abs(ml - volume_ml) > tolerance * volume_ml:
         off = 100 * (ml / volume_ml - 1)
         warnings.warn(f"{obj.name}: settled volume {ml:.1f} ml is {off:+.1f} % from the asked "
-                      f"{volume_ml:.1f} ml after {iteration} fills", RuntimeWarning, stacklevel=2)
+                      f"{volume_ml:.1f} ml, the closest of {iteration} fills", RuntimeWarning,
+                      stacklevel=2)
     keep = torch.as_tensor(mask)
     out = make_state(state.x.detach()[keep], state.v.detach()[keep], poses=poses, dtype=dtype)
     report = FillReport(volume_ml, int(mask.sum()), ml / int(mask.sum()), ml, height, iteration,
@@ -160,7 +162,8 @@ def _asked_ml(obj: ObjectModel, volume_ml, fraction) -> float:
 def _candidates(model: FluidModel, poses: torch.Tensor, index: int, obj: ObjectModel,
                 clearance: float) -> np.ndarray:
     """Rest-lattice sites (K, 3), object frame, in the cavity or in the column above its
-    opening, clear of all objects by ``clearance`` m; lowest first, ties in a fixed order."""
+    opening, clear of all objects by ``clearance`` m; lowest first, then nearest the
+    cavity's vertical centre line (a partial layer is a puddle in the middle)."""
     s = model.spacing
     lo, hi = obj.cavity.bounds
     rim = obj.rim_height
@@ -172,8 +175,9 @@ def _candidates(model: FluidModel, poses: torch.Tensor, index: int, obj: ObjectM
     objects = [o.to(dtype=torch.float64) for o in model.objects]
     dist = min_sdf(torch.as_tensor(world), objects, poses.to(torch.float64)).numpy()
     pts = pts[dist > clearance]
-    tie = np.random.default_rng(0).permutation(len(pts))
-    return pts[np.lexsort((tie, np.round(pts[:, 1], 9)))]
+    centre = obj.cavity.center_mass
+    reach = np.round(np.hypot(pts[:, 0] - centre[0], pts[:, 2] - centre[2]), 9)
+    return pts[np.lexsort((reach, np.round(pts[:, 1], 9)))]
 
 
 def _take(sites: np.ndarray, liquid: np.ndarray, n: int, model: FluidModel,
@@ -195,29 +199,27 @@ def _take(sites: np.ndarray, liquid: np.ndarray, n: int, model: FluidModel,
     return avail[:n]
 
 
-def _next_count(history: dict, target: float, last: int, marginal: float) -> int:
-    """Next particle count from the history {count: settled ml}.
+def _next_count(history: dict, target: float, last: int) -> int | None:
+    """Next particle count from the history {count: settled ml}, or None when no count
+    between those tried can do better.
 
-    Once counts on both sides of the target are known, interpolate between the closest
-    two. Before that, step from the last count at a slope (ml per particle) between two
-    estimates — the mean over the liquid (too small while the floor layers still compact)
-    and the ``marginal`` one of its upper half (too large once new weight compacts the
-    layers below): their average, or the secant of two counts on the same side, clamped.
+    With counts on both sides of the target, interpolate between the closest pair (by
+    count) that brackets it; otherwise scale the last count by target / measured, at most
+    by 2.5 either way (settled liquid here is about twice as dense as the rest lattice).
     """
     pts = sorted(history.items())
-    lower = [p for p in pts if p[1] < target]
-    upper = [p for p in pts if p[1] > target]
-    if lower and upper:
-        (n1, v1), (n2, v2) = lower[-1], upper[0]
-        return max(4, int(round(n1 + (target - v1) * (n2 - n1) / (v2 - v1))))
-    v = history[last]
-    lo, hi = sorted([v / last, marginal])
-    slope = 0.5 * (lo + hi)
-    if len(pts) >= 2:
-        (n1, v1), (n2, v2) = (pts[-2], pts[-1]) if v < target else (pts[0], pts[1])
-        if n2 != n1 and v2 != v1:
-            slope = min(max((v2 - v1) / (n2 - n1), lo), hi)
-    return max(4, int(round(last + (target - v) / slope)))
+    below = [n for n, v in pts if v < target]
+    above = [n for n, v in pts if v > target]
+    pairs = [(a, b) for a in below for b in above if a < b]
+    if pairs:
+        n1, n2 = min(pairs, key=lambda p: p[1] - p[0])
+        if n2 - n1 <= 1:
+            return None
+        v1, v2 = history[n1], history[n2]
+        n = int(round(n1 + (target - v1) * (n2 - n1) / (v2 - v1)))
+        return min(max(n, n1 + 1), n2 - 1)
+    n = int(round(last * min(max(target / max(history[last], 1e-9), 0.4), 2.5)))
+    return None if n == last or n in history else max(4, n)
 
 
 def _settle(model: FluidModel, state: FluidState, steps: int, progress: bool,

@@ -1,22 +1,34 @@
 """How much liquid a container holds, read off the particles and the container's geometry.
 
-``settled_volume`` is the container's exact cavity volume below the liquid's free surface
-(:meth:`~liquidtwin.geometry.ObjectModel.volume_below_ml`): what a real container holds
-when its liquid stands at the same height. It is not the particle count times a nominal
-particle volume, because settled PBF liquid packs much denser than the rest lattice (no
-boundary particles: particles against walls and floor miss neighbours and the liquid
-compresses until their density sums reach the rest density).
+The liquid is taken to fill the container's cavity from its floor up to a free surface half
+a particle layer above the topmost particles, wherever particles are: the cavity is cut
+into vertical columns (a quarter spacing wide, each with its exact floor and top from the
+cavity mesh), a column is wet when a particle lies within 0.65 spacing of it horizontally,
+and its liquid reaches the mean height of the top particles near it plus half a layer.
+The volume is the sum over wet columns. For liquid that covers the container's floor this
+is what the cavity holds below a flat surface at that height (what a real container holds
+when its liquid stands there); for a puddle that covers part of a plate, it is the
+puddle's area times its depth.
+
+It is not the particle count times a nominal particle volume: settled PBF liquid packs
+much denser than the rest lattice (no boundary particles: particles against walls and floor
+miss neighbours and the liquid compresses until their density sums reach the rest density).
 """
 
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 import torch
 
-from ..geometry import ObjectModel
+from ..geometry import ObjectModel, _rays
 from ..sim import FluidModel, FluidState, find_neighbors, quat_to_matrix
+
+WET_REACH = 0.65     # spacings: how far from a particle a column still holds liquid
+TOP_REACH = 1.0      # spacings: top particles averaged for a column's surface
+_SQUASH = torch.tensor([1.0, 1e-4, 1.0], dtype=torch.float64)   # heights squashed: columns
 
 
 def rotation(pose: torch.Tensor) -> np.ndarray:
@@ -65,41 +77,70 @@ def nearest_spacing(x: np.ndarray, spacing: float) -> float:
     return float(best[torch.isfinite(best)].median())
 
 
-def surface_height(local: np.ndarray, spacing: float) -> float:
-    """Height (m) of the free surface of settled particles at positions (N, 3), m.
-
-    The top particles are those with no other particle above them within 0.6 rest
-    ``spacing`` horizontally; the surface lies half a layer (√0.75·s/2, s the median
-    nearest-neighbour distance) above their mean height. For particles in the rest lattice
-    that is exactly the boundary of the volume they stand for.
-    """
-    squash = torch.tensor([1.0, 1e-4, 1.0], dtype=torch.float64)    # whole columns are near
-    nb = find_neighbors(torch.as_tensor(local, dtype=torch.float64) * squash, None, 0.6 * spacing)
+def top_particles(local: np.ndarray, spacing: float) -> np.ndarray:
+    """(N,) bool: particles (N, 3) with no other particle above them within 0.6 spacing
+    horizontally (the liquid's top layer)."""
+    nb = find_neighbors(torch.as_tensor(local, dtype=torch.float64) * _SQUASH, None, 0.6 * spacing)
     rows, col = nb.rows(), nb.col
     y = torch.as_tensor(local[:, 1])
     covered = torch.zeros(len(local), dtype=torch.bool)
     covered[rows[y[col] > y[rows]]] = True
-    top = ~covered.numpy()
+    return ~covered.numpy()
+
+
+def surface_height(local: np.ndarray, spacing: float) -> float:
+    """Mean height (m) of the free surface over settled particles at positions (N, 3), m:
+    half a layer (√0.75·s/2, s the median nearest-neighbour distance) above the mean height
+    of the top particles. For the rest lattice that is exactly the boundary of the volume
+    its particles stand for."""
     layer = math.sqrt(0.75) * nearest_spacing(local, spacing)
-    return float(local[top, 1].mean() + 0.5 * layer)
+    return float(local[top_particles(local, spacing), 1].mean() + 0.5 * layer)
+
+
+@lru_cache(maxsize=32)
+def _columns(obj: ObjectModel, cell: float):
+    """Vertical columns through the cavity: (xz (K, 2) centres, interval column (I,),
+    bottoms (I,), tops (I,) m, cell m, scale) — scale makes the columns' total equal the
+    exact capacity (it corrects the staircase at the walls, a fraction of a percent)."""
+    lo, hi = obj.cavity.bounds
+    xs = np.arange(lo[0] + 0.5 * cell, hi[0], cell)
+    zs = np.arange(lo[2] + 0.5 * cell, hi[2], cell)
+    xz = np.stack(np.meshgrid(xs, zs, indexing="ij"), -1).reshape(-1, 2)
+    col, y = _rays.column_hits(obj.cavity.vertices, obj.cavity.faces, xz)
+    first = np.r_[True, col[1:] != col[:-1]]
+    rank = np.arange(len(col)) - np.maximum.accumulate(np.where(first, np.arange(len(col)), 0))
+    start = rank % 2 == 0                                          # entering the cavity
+    pair = start[:-1] & (col[1:] == col[:-1])
+    bottom, top, owner = y[:-1][pair], y[1:][pair], col[:-1][pair]
+    used, owner = np.unique(owner, return_inverse=True)
+    total = float(((top - bottom) * cell * cell).sum())
+    scale = obj.capacity_ml / 1e6 / total if total > 0 else 1.0
+    return xz[used], owner, bottom, top, scale
 
 
 def settled_volume(model: FluidModel, state: FluidState, index: int, obj: ObjectModel):
-    """Liquid container ``index`` holds: (ml, surface height m in the object frame,
-    mask (N,) of the held particles). The volume is what the cavity holds below the free
-    surface (:func:`surface_height`) of the held particles."""
+    """Liquid container ``index`` holds: (ml, mean surface height m in the object frame over
+    the wet area, mask (N,) of the held particles). See the module docstring."""
     mask, local = held(model, state, index, obj)
     n = int(mask.sum())
     if n < 4:
         raise ValueError(f"{obj.name} holds only {n} particles: too few to measure a volume")
-    height = min(surface_height(local[mask], model.spacing), obj.rim_height)
-    return obj.volume_below_ml(height), height, mask
-
-
-def marginal_ml(local: np.ndarray, height: float, obj: ObjectModel) -> float:
-    """ml per particle in the upper half of the liquid (held particles' object-frame
-    positions (N, 3), surface ``height`` m): what one more particle adds, unlike the mean
-    it leaves out the compacted layers against the floor."""
-    mid = float(np.median(local[:, 1]))
-    above = int((local[:, 1] > mid).sum())
-    return (obj.volume_below_ml(height) - obj.volume_below_ml(mid)) / max(above, 1)
+    p = local[mask]
+    s = model.spacing
+    xz, owner, bottom, top, scale = _columns(obj, s / 4.0)
+    q = torch.as_tensor(np.stack([xz[:, 0], np.zeros(len(xz)), xz[:, 1]], 1))
+    pts = torch.as_tensor(p) * _SQUASH
+    wet = (find_neighbors(q, pts, WET_REACH * s).counts() > 0).numpy()
+    is_top = top_particles(p, s)
+    nb = find_neighbors(q, pts[torch.as_tensor(is_top)], TOP_REACH * s)
+    rows, ys = nb.rows(), torch.as_tensor(p[is_top, 1])[nb.col]
+    total = torch.zeros(len(xz), dtype=torch.float64).index_add_(0, rows, ys).numpy()
+    count = nb.counts().numpy()
+    fallback = float(p[is_top, 1].mean())
+    surf = np.where(count > 0, total / np.maximum(count, 1), fallback)
+    surf = surf + 0.5 * math.sqrt(0.75) * nearest_spacing(p, s)
+    depth = np.clip(surf[owner] - bottom, 0.0, top - bottom) * wet[owner]
+    area = (s / 4.0) ** 2
+    ml = float(depth.sum() * area * scale * 1e6)
+    height = float(min(surf[wet].mean(), obj.rim_height)) if wet.any() else obj.floor_height
+    return ml, height, mask
