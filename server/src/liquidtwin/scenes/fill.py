@@ -172,8 +172,9 @@ def _candidates(model: FluidModel, poses: torch.Tensor, index: int, obj: ObjectM
     probe[:, 1] = np.minimum(probe[:, 1], rim - 1e-9)           # above the rim: the opening
     pts = pts[obj.in_cavity(probe)]
     world = pts @ rotation(poses[index]).T + poses[index, :3].to(torch.float64).numpy()
-    objects = [o.to(dtype=torch.float64) for o in model.objects]
-    dist = min_sdf(torch.as_tensor(world), objects, poses.to(torch.float64)).numpy()
+    dtype = model.objects[index].values.dtype
+    dist = min_sdf(torch.as_tensor(world, dtype=dtype), model.objects, poses.to(dtype))
+    dist = dist.double().cpu().numpy()
     pts = pts[dist > clearance]
     centre = obj.cavity.center_mass
     reach = np.round(np.hypot(pts[:, 0] - centre[0], pts[:, 2] - centre[2]), 9)

@@ -50,12 +50,13 @@ def held(model: FluidModel, state: FluidState, index: int,
     pose = state.poses[index].detach().to(torch.float64)
     R = rotation(pose)
     local = (state.x.detach().to(torch.float64).cpu().numpy() - pose[:3].numpy()) @ R
-    grid = model.objects[index].to(dtype=torch.float64)
-    p = torch.as_tensor(local)
+    grid = model.objects[index]
+    p = torch.as_tensor(local, dtype=grid.values.dtype, device=grid.values.device)
     e = 0.5 * grid.cell
-    d = grid.sample_local(p).numpy()
-    grad = np.stack([(grid.sample_local(p + e * u) - grid.sample_local(p - e * u)).numpy()
-                     for u in torch.eye(3, dtype=torch.float64)], 1)
+    sdf = lambda x: grid.sample_local(x).double().cpu().numpy()  # noqa: E731
+    d = sdf(p)
+    grad = np.stack([sdf(p + e * u) - sdf(p - e * u)
+                     for u in torch.eye(3, dtype=p.dtype, device=p.device)], 1)
     grad /= np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-12)
     probe = local + np.clip(0.5 * obj.wall - d, 0.0, obj.wall)[:, None] * grad
     rim = obj.rim_height
