@@ -120,14 +120,15 @@ def _lip(model) -> np.ndarray:
     return np.array([-outer, top, 0.0])
 
 
-def _source_sites(index: int, model):
-    """Leak (a radial hole through the wall) and blockage (a plate across the opening on the
-    pouring side) of a round source container in its own frame."""
+def _source_sites(index: int, model, fill_ml: float):
+    """Leak (a radial hole through the wall, below the initial liquid surface) and blockage
+    (a plate across the opening on the pouring side) of a round source container in its own
+    frame."""
     lo, hi = model.cavity.bounds
-    depth = float(hi[1] - lo[1])
+    depth = float(model.height_for_volume(fill_ml)) - float(lo[1])
 
     def leak(radius, extra):
-        y = float(lo[1]) + extra["height_fraction"] * depth
+        y = float(lo[1]) + max(extra["height_fraction"] * depth, radius + model.wall)
         inner, outer = _radial(model, y)
         az = math.radians(extra["azimuth_deg"])
         axis = np.array([math.cos(az), 0.0, math.sin(az)])
@@ -160,10 +161,11 @@ def _pour(kind: str, rng, quick: bool) -> Setup:
     speed = 2.5 if quick else 1.0
     motion = mo.pour(kind, lip_local, lip_world, start=0.3 if quick else 0.5, speed=speed)
     source = SceneItem("source", source_name, {}, src_model, src_model.sdf(), motion, True)
-    leak, blockage = _source_sites(0, src_model)
     volume = round(fraction * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
+    leak, blockage = _source_sites(0, src_model, volume)
     centre = np.array([0.05, 0.5 * (rim_t + lip_world[1]), 0.0])
-    cam = _camera(rng, centre + np.array([0.0, 0.12, 0.6]), centre, quick)
+    # Raised ~35° like the thesis's tripod camera, so it sees into the target, not just its wall.
+    cam = _camera(rng, centre + np.array([0.0, 0.36, 0.5]), centre, quick)
     duration = motion.end + (0.6 if quick else 1.5)
     return Setup(f"pour_{kind}", (source, target, _table()), (("source", volume),), (cam,), duration,
                  "pour", {"kind_" + kind: 1.0, "speed": speed}, leak_site=leak, blockage_site=blockage,
@@ -181,8 +183,8 @@ def _catching(rng, quick: bool) -> Setup:
     start_x = x_catch + float(rng.choice([-1.0, 1.0])) * float(rng.uniform(0.12, 0.18))
     slide = mo.slide([start_x, 0.0, 0.0], [x_catch, 0.0, 0.0], start=0.2, duration=(1.0 if quick else 2.0))
     catcher = _item("catcher", "cup", slide, container=True)
-    leak, blockage = _source_sites(0, src_model)
     volume = round(0.6 * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
+    leak, blockage = _source_sites(0, src_model, volume)
     cam = _camera(rng, [0.0, 0.3, 0.85], [0.0, 0.2, 0.0], quick)
     duration = motion.end + (1.0 if quick else 2.5)
     return Setup("catching", (source, catcher, _table()), (("source", volume),), (cam,), duration, "catching",
@@ -199,7 +201,7 @@ def _pipe(rng, quick: bool) -> Setup:
     motion = mo.pour("hold", lip_local, lip_world, start=0.3, speed=speed)
     source = SceneItem("source", "cup", {}, src_model, src_model.sdf(), motion, True)
     volume = round(0.6 * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
-    leak, _ = _source_sites(0, src_model)
+    leak, _ = _source_sites(0, src_model, volume)
 
     def blockage(fraction, extra):
         leg = "left" if extra.get("leg", 0.0) < 0.5 else "right"

@@ -48,8 +48,8 @@ EFFECTS: dict[str, EffectKind] = {e.name: e for e in (
     EffectKind("wall_adhesion", "physics", "1/s", ((15.0, 45.0),),
                "particles within about a particle spacing of a wall lose speed at this rate"),
     EffectKind("leak", "geometry", "m", ((0.004, 0.007),),
-               "a round hole of this radius in the source container's wall; "
-               "extra: height fraction and azimuth of the hole"),
+               "a round hole of this radius in the source container's wall; extra: its height as a "
+               "fraction of the initial liquid depth and its azimuth"),
     EffectKind("blockage", "geometry", "1", ((0.4, 1.0),),
                "fraction of a spout's or pipe leg's cross-section obstructed; extra: which leg"),
     EffectKind("fill_error", "initial", "1", ((-0.35, -0.12), (0.12, 0.35)),
@@ -94,8 +94,10 @@ def _extras(name: str, rng: np.random.Generator) -> dict:
     if name == "wind":
         return {"azimuth_deg": float(round(rng.uniform(0.0, 360.0), 3))}
     if name == "leak":
-        return {"height_fraction": float(round(rng.uniform(0.12, 0.35), 4)),
-                "azimuth_deg": float(round(rng.uniform(-60.0, 60.0), 3))}
+        # Below the liquid's initial surface, on the pouring half of the wall (azimuth from +x
+        # about +y; the lip is at 180°), where liquid presses on it before and while pouring.
+        return {"height_fraction": float(round(rng.uniform(0.2, 0.6), 4)),
+                "azimuth_deg": float(round(rng.uniform(120.0, 240.0), 3))}
     if name == "camera_offset":
         axis = rng.normal(size=3)
         shift = rng.normal(size=3)

@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 from ..camera import Camera
 from ..recordings import CameraInfo, RecordingWriter
 from ..scenes.motions import quat_axis_angle, quat_multiply
-from ..sensors import MaskNoise, PoseNoise, corrupt_mask, dropped_frames, noisy_poses, synth_rgb
+from ..sensors import MaskNoise, PoseNoise, RGBParams, corrupt_mask, dropped_frames, noisy_poses, synth_rgb
 from . import catalog
 from .effects import EFFECTS, Effect, sample_effect
 from .observe import liquid_mask, object_labels, particle_radius
@@ -104,10 +104,12 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
       noise: pose/mask noise and dropped frames (off: perfect sensors, for golden files).
     """
     out = Path(out)
-    rng = np.random.default_rng(seed)
-    setup = catalog.build_setup(scene, rng, quick)
-    effs = _resolve(effects, rng)
-    world = build_world(setup, effs, rng)
+    # Independent streams: the same seed gives the same scene, world jitter and sensor noise
+    # whatever effects are hidden, so an effect is the only difference between two recordings.
+    scene_rng, effect_rng, world_rng, rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4))
+    setup = catalog.build_setup(scene, scene_rng, quick)
+    effs = _resolve(effects, effect_rng)
+    world = build_world(setup, effs, world_rng)
     state, reports = initial_state(world, setup, progress=progress)
     steps = int(math.ceil(setup.duration / setup.dt - 1e-9))
     x = simulate(world, setup, state, steps, progress=progress)
@@ -130,6 +132,7 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
     # Occluders: the objects, not the table (the camera and the liquid are above it).
     solid = [k for k, o in enumerate(setup.objects) if o.name != catalog.TABLE]
     colors = rng.uniform(0.15, 0.9, (len(meshes), 3))
+    look = RGBParams.sample(rng) if rgb else None      # one table, texture and lighting per recording
 
     spec = scene_spec(setup)
     truth_frames = []
@@ -159,7 +162,7 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
                     if rgb:
                         labels = object_labels(cam, meshes, poses_w.numpy())
                         image = synth_rgb(rng, liquid_thickness=thick, liquid_mask=mask, labels=labels,
-                                          object_colors=colors)
+                                          object_colors=colors, params=look)
                         rec.write_image(cam.name, stamp, image, format="jpeg")
                 truth_frames.append((stamp, kw))
                 written_frames += 1
