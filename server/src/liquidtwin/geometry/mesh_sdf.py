@@ -88,10 +88,13 @@ def _pair_dist2(centres, offsets, frames, pair_box, pair_tri, out=None, node_ind
     node_index (B, S) (flat index of each node), min-reduced into out."""
     scale = 64 if centres.is_cuda else torch.get_num_threads()  # small chunks starve threads
     res, step = [], max(1, _CHUNK * scale // len(offsets))
+    spread = bool(offsets.any())
     for i in range(0, len(pair_box), step):
         box, t = pair_box[i:i + step], frames[pair_tri[i:i + step]]
-        rot = t[:, 3:12].reshape(-1, 3, 3)
-        uvw = (rot @ (centres[box] - t[:, :3])[..., None]) + (rot @ offsets.T)
+        rot = t[:, 3:12].reshape(-1, 3, 3)  # rows U, V, W
+        uvw = (rot * (centres[box] - t[:, :3])[:, None, :]).sum(-1, keepdim=True)  # (n, 3, 1)
+        if spread:  # one GEMM: (n·3, 3) @ (3, S)
+            uvw = uvw + (rot.reshape(-1, 3) @ offsets.T).reshape(len(box), 3, -1)
         d2 = _frame_dist2(uvw[:, 0], uvw[:, 1], uvw[:, 2], t)
         if out is None:
             res.append(d2)
