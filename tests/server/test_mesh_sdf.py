@@ -265,6 +265,8 @@ def test_clear_errors_for_bad_meshes_and_requests():
     for bad in (0.0, -0.003, float("nan")):
         with pytest.raises(ValueError, match="wall thickness must be a positive length"):
             mesh_sdf_grid(sphere, bad, cache_dir=False)
+    with pytest.raises(TypeError, match="expected a trimesh.Trimesh, got Scene"):
+        mesh_sdf_grid(trimesh.Scene(sphere), 0.01, cache_dir=False)
     with pytest.raises(ValueError, match="margin must be a non-negative"):
         mesh_sdf_grid(sphere, 0.01, margin=-0.001, cache_dir=False)
     with pytest.raises(ValueError, match="no grid node lies inside"):

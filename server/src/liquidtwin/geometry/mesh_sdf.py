@@ -1,11 +1,11 @@
 """Signed distance grids from watertight triangle meshes, cached on disk (SPEC §2).
 
-What is exact where: **every node** gets the exact distance to the nearest triangle (float32
-rounding, ~1e-8 m on a 10 cm object); nothing is extrapolated or marched. Speed comes from
-conservative culling on an octree of node boxes: a box with centre c and radius r keeps only
-the triangles with d(c, t) ≤ min d(c, ·) + 2r, a set that holds the nearest triangle of
-every node of the box, so culling never changes a value. Point–triangle distance covers
-all Voronoi regions (face, three edges, three vertices).
+What is exact where: **every node** gets the exact distance to the nearest triangle (up to
+float32 rounding, ≤ 3e-8 m on 10–40 cm objects); nothing is extrapolated or marched. Speed
+comes from conservative culling on an octree of node boxes: a box with centre c and radius r
+keeps only the triangles with d(c, t) ≤ min d(c, ·) + 2r, a set that holds the nearest
+triangle of every node of the box, so culling never changes a value. Point–triangle
+distance covers all Voronoi regions (face, three edges, three vertices).
 
 The sign is the winding number w of the mesh at each node, counted along the +y ray of every
 grid column: w = Σ sign(n_y) over the faces crossed above the node. For a closed mesh this is
@@ -210,6 +210,8 @@ def _check(mesh, thickness: float, cell: float, margin: float, name: str) -> Non
         if not (math.isfinite(x) and ok):
             sign = "non-negative" if what == "margin" else "positive"
             raise ValueError(f"{name}: {what} must be a {sign} length in m, got {x}")
+    if not all(hasattr(mesh, a) for a in ("vertices", "faces", "is_watertight")):
+        raise TypeError(f"{name}: expected a trimesh.Trimesh, got {type(mesh).__name__}")
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     if v.ndim != 2 or v.shape[1:] != (3,) or f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0:
         raise ValueError(f"{name}: mesh needs (V, 3) vertices and (F, 3) faces, got {v.shape}"
