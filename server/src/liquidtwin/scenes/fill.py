@@ -88,7 +88,7 @@ def fill_container(model: FluidModel, poses, index: int, obj: ObjectModel, *,
     R, t = rotation(poses[index]), poses[index, :3].to(torch.float64).numpy()
     rest_ml = model.particle_volume * 1e6
     steps = max(1, int(round(settle_s / model.dt)))
-    local = _take(sites, np.zeros((0, 3)), int(round(volume_ml / rest_ml)), model, obj.name)
+    local = _take(sites, np.zeros((0, 3)), max(4, round(volume_ml / rest_ml)), model, obj.name)
     vel = np.zeros_like(local)                                   # world frame, m/s
     history, best = {}, None
     for iteration in range(1, max_iterations + 1):
