@@ -1,0 +1,73 @@
+"""Scene specs as files: protobuf JSON round trip, catalogue and user-mesh objects, clear errors."""
+
+import hashlib
+
+import numpy as np
+import pytest
+from liquidtwin_proto import liquidtwin_pb2 as pb
+
+from liquidtwin.geometry import build
+from liquidtwin.scenes.spec import SpecError, load_spec, save_spec, scene_objects, simulation_settings
+
+
+def _spec(**fill) -> pb.SceneSpec:
+    spec = pb.SceneSpec(name="my_pour")
+    spec.objects.add(name="source", model="cup", container=True, initial_pose=[0.1, 0.2, 0, 0, 0, 0, 1])
+    spec.objects[0].params["radius"] = 0.04
+    spec.fills.add(container="source", **(fill or {"volume_ml": 150.0}))
+    return spec
+
+
+def test_json_round_trip_and_defaults(tmp_path):
+    spec = _spec()
+    save_spec(spec, tmp_path / "s.json")
+    assert load_spec(tmp_path / "s.json") == spec
+    assert '"volumeMl": 150.0' in (tmp_path / "s.json").read_text()
+    sim = simulation_settings(spec)
+    assert sim["h"] == 0.011 and sim["iterations"] == 4 and sim["spacing"] == pytest.approx(0.55 * 0.011)
+
+
+def test_catalogue_and_user_mesh_objects(tmp_path):
+    cup = build("cup")
+    path = tmp_path / "cup_mm.stl"
+    mesh = cup.mesh.copy()
+    mesh.apply_scale(1000.0)                                 # a file in millimetres
+    mesh.export(path)
+    spec = _spec()
+    spec.objects.add(name="mine", model="mesh", mesh_uri="cup_mm.stl", container=True,
+                     mesh_sha256=hashlib.sha256(path.read_bytes()).hexdigest(), params={"scale": 0.001})
+    objs = scene_objects(spec, base_dir=tmp_path)
+    assert [n for n, _, _ in objs] == ["source", "mine"]
+    assert np.allclose(objs[0][2], [0.1, 0.2, 0, 0, 0, 0, 1])
+    assert objs[1][1].capacity_ml == pytest.approx(cup.capacity_ml, rel=0.02)
+    assert objs[0][1].capacity_ml > cup.capacity_ml          # radius 4 cm > default 3.75 cm
+    spec.objects[1].mesh_sha256 = "0" * 64
+    with pytest.raises(SpecError, match="SHA-256"):
+        scene_objects(spec, base_dir=tmp_path)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda s: setattr(s.objects[0], "model", "teapot"), "unknown model 'teapot'"),
+    (lambda s: s.objects.add(name="source", model="bowl"), "unique"),
+    (lambda s: s.fills.add(container="nowhere", volume_ml=1.0), "not a container"),
+    (lambda s: s.objects[0].initial_pose.__setitem__(6, 3.0), "unit quaternion"),
+    (lambda s: s.objects.add(name="m", model="mesh"), "needs mesh_uri"),
+    (lambda s: setattr(s.fills[0], "fraction", 1.5), "fraction"),
+])
+def test_bad_specs_are_named(tmp_path, change, message):
+    spec = _spec()
+    change(spec)
+    save_spec(spec, tmp_path / "bad.json")
+    with pytest.raises(SpecError, match=message):
+        load_spec(tmp_path / "bad.json")
+
+
+def test_unreadable_files(tmp_path):
+    (tmp_path / "a.json").write_text("{not json")
+    with pytest.raises(SpecError, match="not a valid SceneSpec"):
+        load_spec(tmp_path / "a.json")
+    (tmp_path / "b.json").write_text('{"name": "x", "colour": "red"}')
+    with pytest.raises(SpecError, match="not a valid SceneSpec"):
+        load_spec(tmp_path / "b.json")
+    with pytest.raises(SpecError, match="cannot read"):
+        load_spec(tmp_path / "missing.json")
