@@ -12,6 +12,8 @@
 #include <numeric>
 #include <vector>
 
+#include "collide_native.h"
+
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
@@ -369,4 +371,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("pressure_tension_backward", &pressure_tension_backward);
   m.def("viscosity", &viscosity);
   m.def("viscosity_backward", &viscosity_backward);
+  m.def("sdf_lower_bounds", &collide::lower_bounds, "lower bounds on every object's SDF at points (N, M)");
+  m.def("collide_plan", &collide::plan, "which particles collide with which objects, in how many pieces");
+  m.def("collide_pieces", &collide::collide_pieces, "anti-clipped particle moves with SDF push-out");
 }

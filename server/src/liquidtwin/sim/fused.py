@@ -93,3 +93,37 @@ def pressure_tension(x, omega, nrm, row_ptr, col, h):
 def viscosity(x, v, row_ptr, col, h):
     """Σ_j W_ρ(d_ij)(v_j − v_i) (N, 3) — see pbf.viscosity_sum."""
     return _Viscosity.apply(x, v, row_ptr, col, float(h))
+
+
+def _grids(objects, dtype):
+    """SDF values (nx, ny, nz) in ``dtype`` (cached per grid), origins (M, 3) and cells (M,)."""
+    grids = [o._converted("values", "cpu", dtype) for o in objects]
+    origins = torch.stack([o._converted("origin", "cpu", torch.float64).detach() for o in objects])
+    cells = torch.tensor([float(o.cell) for o in objects], dtype=torch.float64)
+    return grids, origins, cells
+
+
+def sdf_lower_bounds(x, poses, objects):
+    """(N, M) lower bounds on every object's SDF at points x (N, 3) m, objects at poses (M, 7)
+    — :meth:`SDFGrid.lower_bound_local` in one C++ pass (no gradient)."""
+    grids, origins, cells = _grids(objects, x.dtype)
+    return _native.sdf_lower_bounds(x.detach().contiguous(), poses.detach().to(x.dtype), grids, origins, cells)
+
+
+def collide_pieces(x, delta, pose_a, pose_b, objects, idx, active, pieces, collision_distance, dilation, fixed):
+    """Anti-clipped move of particles ``idx`` (R,) in ``pieces`` (R,) pieces each, pushed out of
+    their ``active`` (R, M) objects after every piece (see :mod:`liquidtwin.sim.collide`).
+    x, delta (N, 3) m; poses (M, 7); ``fixed``: objects stay at pose_b. Forward only → (N, 3)."""
+    grids, origins, cells = _grids(objects, x.dtype)
+    return _native.collide_pieces(x.detach().contiguous(), delta.detach(), pose_a.detach(), pose_b.detach(), grids,
+                                  origins, cells, idx, active, pieces, float(collision_distance), float(dilation),
+                                  bool(fixed))
+
+
+def collide_plan(x, delta, pose_a, objects, sweep, margin, thin, max_pieces, forced=0):
+    """The collision plan of :func:`liquidtwin.sim.collide.plan_collisions` in one C++ pass:
+    x, delta (N, 3) m; pose_a (M, 7); sweep, margin (M,) m; thin (M,) longest piece, m.
+    Returns idx (R,), active (R, M) bool, pieces (R,), counts (S,), uncapped max (0-d)."""
+    grids, origins, cells = _grids(objects, x.dtype)
+    return _native.collide_plan(x.detach().contiguous(), delta.detach(), pose_a.detach(), grids, origins, cells,
+                                sweep, margin, torch.tensor(thin, dtype=torch.float64), int(max_pieces), int(forced))

@@ -16,25 +16,19 @@ kernels of :mod:`liquidtwin.sim.fused` (fast path on CPU). ``"auto"`` picks fuse
 from __future__ import annotations
 
 import dataclasses
-import math
-import warnings
 from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
 from torch.utils.checkpoint import checkpoint
 
-from . import fused
+from . import collide, fused
+from .collide import PIECE_FRACTION  # noqa: F401  (re-exported: anti-clipping piece / wall)
 from .convsp import convsp
 from .neighbors import Neighbors, cell_order, check_points, find_neighbors
 from .packing import calibrate, particle_volume
-from .sdf import POSE_DIM, SDFGrid, check_poses, interpolate_poses, push_out, sweep_bound
+from .sdf import POSE_DIM, SDFGrid, check_poses
 from .terms import Term
-
-PIECE_FRACTION = 1.0 / 3.0
-"""Anti-clipping pieces (particle move + object sweep) are at most this fraction of the
-thinnest wall: a particle then penetrates at most a third of a wall, where the sampled SDF
-(cells of at most a quarter wall) still points back to the side it came from."""
 
 PARAM_NAMES = ("lambda_omega", "lambda_c", "lambda_s", "lambda_v", "rho0")
 
@@ -308,41 +302,31 @@ class _Lists:
 
 def collide_move(model: FluidModel, x: torch.Tensor, delta: torch.Tensor, pose_a: torch.Tensor,
                  pose_b: torch.Tensor) -> torch.Tensor:
-    """Move particles by ``delta`` while objects move from ``pose_a`` to ``pose_b`` (M, 7),
-    without letting any particle pass through a wall (anti-clipping).
+    """Move particles x (N, 3) m by ``delta`` (N, 3) m while objects move from ``pose_a`` to
+    ``pose_b`` (M, 7), without letting any particle pass through a wall (anti-clipping).
 
-    The move is split into S equal pieces, each shorter than a third of the thinnest wall once
-    the object's own sweep is added; after each piece particles are pushed out of objects
-    posed at the matching fraction of their motion. Only particles that could reach an
-    object during the move (by a lower bound on their distance) take part.
+    The move is split into pieces, each shorter than a third of the wall of every object the
+    particle can reach once the objects' sweeps are added; after each piece particles are
+    pushed out of objects posed at the matching fraction of their motion. Only particles that
+    could reach an object during the move (by a lower bound on their distance) take part,
+    and only for the objects they can reach (:mod:`liquidtwin.sim.collide`). Differentiable
+    w.r.t. x, delta and the poses; when no gradient is needed and the C++ extension is
+    built (backend auto/fused, CPU) the pieces run natively with the same result.
+    Returns (N, 3) positions, m.
     """
     if not model.objects:
         return x + delta
-    sweep = float(sweep_bound(model.objects, pose_a.detach(), pose_b.detach()).max())
-    reach = delta.detach().norm(dim=-1)
-    start = _sdf_lower_bound(model, x.detach(), pose_a.detach())
-    margin = model.collision_distance + 2.0 * max(o.cell for o in model.objects)
-    active = torch.nonzero(start < reach + sweep + margin).flatten()
-    if active.numel() == 0:
+    same = pose_a is pose_b
+    pose_a = pose_a.to(x)
+    pose_b = pose_a if same else pose_b.to(x)
+    native = model.use_fused(x) and x.dtype in (torch.float32, torch.float64)
+    plan = collide.plan_collisions(model.objects, x, delta, pose_a, pose_b, model.collision_distance,
+                                   model.max_pieces, native)
+    if plan is None:
         return x + delta
-    piece = PIECE_FRACTION * min(o.thickness for o in model.objects)
-    pieces = max(1, math.ceil((float(reach[active].max()) + sweep) / piece))
-    if pieces > model.max_pieces:
-        warnings.warn(f"anti-clipping needs {pieces} pieces for this move but max_pieces is "
-                      f"{model.max_pieces}: fast particles or objects may cross walls thinner than "
-                      f"{piece / PIECE_FRACTION:.4f} m; raise FluidModel.max_pieces or lower dt", RuntimeWarning)
-        pieces = model.max_pieces
-    xa, da = x[active], delta[active] / pieces
-    for s in range(1, pieces + 1):
-        pose = pose_b if s == pieces else interpolate_poses(pose_a, pose_b, s / pieces)
-        xa = push_out(xa + da, model.objects, pose, model.collision_distance, model._normal_dilation)
-    return (x + delta).index_copy(0, active, xa)
-
-
-def _sdf_lower_bound(model: FluidModel, x: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
-    from .sdf import _world_to_local
-    vals = [o.lower_bound_local(_world_to_local(x, poses[j])) for j, o in enumerate(model.objects)]
-    return vals[0] if len(vals) == 1 else torch.stack(vals, 0).min(0).values
+    grad = torch.is_grad_enabled() and any(t.requires_grad for t in (x, delta, pose_a, pose_b))
+    move = collide.move_native if native and not grad else collide.move_torch
+    return move(model.objects, x, delta, pose_a, pose_b, plan, model.collision_distance, model._normal_dilation)
 
 
 def _check_step_inputs(model: FluidModel, state: FluidState, poses: torch.Tensor) -> None:

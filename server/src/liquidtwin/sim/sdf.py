@@ -85,6 +85,7 @@ class SDFGrid:
     name: str = "object"
     _volume: torch.Tensor = field(init=False, repr=False)
     _extent: torch.Tensor = field(init=False, repr=False)
+    _cache: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         v = torch.as_tensor(self.values)
@@ -101,6 +102,18 @@ class SDFGrid:
         # grid_sample wants (N, C, D, H, W) with D ↔ z, H ↔ y, W ↔ x.
         object.__setattr__(self, "_volume", v.permute(2, 1, 0).contiguous()[None, None])
         object.__setattr__(self, "_extent", torch.tensor(v.shape, dtype=v.dtype) - 1)
+        object.__setattr__(self, "_cache", {})
+
+    def _converted(self, what: str, device, dtype) -> torch.Tensor:
+        """``values`` (contiguous, (nx, ny, nz)), ``origin`` or the grid_sample ``volume`` on a
+        device and dtype, converted once and kept: every collision piece samples the grid again."""
+        key = (what, torch.device(device), dtype)
+        out = self._cache.get(key)
+        if out is None:
+            src = {"volume": self._volume, "values": self.values, "origin": self.origin}[what]
+            out = src.to(device=device, dtype=dtype).contiguous()
+            self._cache[key] = out
+        return out
 
     def to(self, device=None, dtype=None) -> "SDFGrid":
         return SDFGrid(self.values.to(device=device, dtype=dtype), self.origin.to(device=device, dtype=dtype),
@@ -109,10 +122,13 @@ class SDFGrid:
     @property
     def bounding_radius(self) -> float:
         """Largest distance from the object origin to a grid corner, m."""
+        if "radius" in self._cache:
+            return self._cache["radius"]
         lo = self.origin
         hi = self.origin + self._extent.to(lo) * self.cell
         corners = torch.stack(torch.meshgrid(*[torch.stack([lo[a], hi[a]]) for a in range(3)], indexing="ij"), -1)
-        return float(corners.reshape(-1, 3).norm(dim=-1).max())
+        self._cache["radius"] = float(corners.reshape(-1, 3).norm(dim=-1).max())
+        return self._cache["radius"]
 
     def sample_local(self, p: torch.Tensor, lower_bound: bool = False) -> torch.Tensor:
         """SDF at object-frame points (..., 3), m → (...); outside the grid it grows with the distance to it.
@@ -123,7 +139,7 @@ class SDFGrid:
         """
         shape = p.shape[:-1]
         p = p.reshape(-1, 3)
-        vol = self._volume.to(device=p.device, dtype=p.dtype)
+        vol = self._converted("volume", p.device, p.dtype)
         extent = self._extent.to(device=p.device, dtype=p.dtype)
         u = (p - self.origin.to(p)) / self.cell
         uc = torch.minimum(torch.maximum(u, torch.zeros_like(u)), extent)
@@ -213,5 +229,5 @@ def sweep_bound(objects, p0: torch.Tensor, p1: torch.Tensor) -> torch.Tensor:
     sign = torch.where((q0 * q1).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(q0.dtype)
     # 4·asin(|Δq|/2) is the rotation angle, accurate near zero (acos of the dot is not).
     angle = 4 * torch.asin(((q1 * sign - q0).norm(dim=-1) / 2).clamp(max=1.0))
-    radius = torch.tensor([o.bounding_radius for o in objects], dtype=p0.dtype)
+    radius = torch.tensor([o.bounding_radius for o in objects], dtype=p0.dtype, device=p0.device)
     return ((p1[:, :3] - p0[:, :3]).norm(dim=-1) + radius * angle).detach()

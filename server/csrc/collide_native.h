@@ -1,0 +1,371 @@
+// Forward-only particle–object collisions (ConvSDF push-out with anti-clipping pieces) for
+// liquidtwin/sim/collide.py. Included by pbf_native.cpp, which registers the functions.
+//
+// The arithmetic mirrors the torch path operation by operation so both agree to rounding:
+// SDFGrid.sample_local (clamp to the grid box, grid_sample trilinear with align_corners and
+// border padding, plus the distance to the box), quat_to_matrix / interpolate_poses (nlerp),
+// and push_out (7-point stencil: value and central-difference normal of min_j SDF_j).
+// Every particle is independent, so the loop parallelises over particles without atomics.
+#pragma once
+
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+namespace collide {
+
+// A signed distance grid (nx, ny, nz) in its object frame, sampled like SDFGrid.sample_local.
+template <typename T>
+struct Grid {
+  const T* v = nullptr;
+  int64_t n[3] = {0, 0, 0};
+  T origin[3] = {0, 0, 0};
+  T cell = 0;
+  T extent[3] = {0, 0, 0};  // n - 1
+
+  T node(int64_t i, int64_t j, int64_t k) const { return v[(i * n[1] + j) * n[2] + k]; }
+
+  // Trilinear value at the clamped point and the distance from the point to the grid box.
+  void sample(const T p[3], T& val, T& outside) const {
+    T ix[3];
+    T out2 = 0;
+    for (int a = 0; a < 3; ++a) {
+      T u = (p[a] - origin[a]) / cell;
+      T uc = std::min(std::max(u, T(0)), extent[a]);
+      T du = (u - uc) * cell;
+      out2 += du * du;
+      T g = T(2) * uc / extent[a] - T(1);                           // sample_local's grid coordinate
+      T c = ((g + T(1)) / T(2)) * static_cast<T>(n[a] - 1);        // grid_sample, align_corners=True
+      ix[a] = std::min(static_cast<T>(n[a] - 1), std::max(c, T(0)));  // border padding
+    }
+    outside = std::sqrt(out2);
+    // grid_sample's 3-D trilinear: corners in its order, each weighted by the opposite volume.
+    const int64_t x0 = static_cast<int64_t>(std::floor(ix[0]));
+    const int64_t y0 = static_cast<int64_t>(std::floor(ix[1]));
+    const int64_t z0 = static_cast<int64_t>(std::floor(ix[2]));
+    const int64_t x1 = x0 + 1, y1 = y0 + 1, z1 = z0 + 1;
+    const T ax = static_cast<T>(x1) - ix[0], bx = ix[0] - static_cast<T>(x0);
+    const T ay = static_cast<T>(y1) - ix[1], by = ix[1] - static_cast<T>(y0);
+    const T az = static_cast<T>(z1) - ix[2], bz = ix[2] - static_cast<T>(z0);
+    const bool xin = x1 < n[0], yin = y1 < n[1], zin = z1 < n[2];
+    T r = 0;
+    r += node(x0, y0, z0) * (ax * ay * az);
+    if (xin) r += node(x1, y0, z0) * (bx * ay * az);
+    if (yin) r += node(x0, y1, z0) * (ax * by * az);
+    if (xin && yin) r += node(x1, y1, z0) * (bx * by * az);
+    if (zin) r += node(x0, y0, z1) * (ax * ay * bz);
+    if (xin && zin) r += node(x1, y0, z1) * (bx * ay * bz);
+    if (yin && zin) r += node(x0, y1, z1) * (ax * by * bz);
+    if (xin && yin && zin) r += node(x1, y1, z1) * (bx * by * bz);
+    val = r;
+  }
+
+  T value(const T p[3]) const { T v, o; sample(p, v, o); return v + o; }
+  T lower_bound(const T p[3]) const { T v, o; sample(p, v, o); return std::max(o, v - o); }
+};
+
+// Rigid frame: local = R^T (p - t).
+template <typename T>
+struct Frame {
+  T R[9];
+  T t[3];
+  void set(const T q_in[4], const T t_in[3]) {  // quat_to_matrix: normalises q
+    T nn = std::sqrt(q_in[0] * q_in[0] + q_in[1] * q_in[1] + q_in[2] * q_in[2] + q_in[3] * q_in[3]);
+    T x = q_in[0] / nn, y = q_in[1] / nn, z = q_in[2] / nn, w = q_in[3] / nn;
+    R[0] = 1 - 2 * (y * y + z * z); R[1] = 2 * (x * y - z * w); R[2] = 2 * (x * z + y * w);
+    R[3] = 2 * (x * y + z * w); R[4] = 1 - 2 * (x * x + z * z); R[5] = 2 * (y * z - x * w);
+    R[6] = 2 * (x * z - y * w); R[7] = 2 * (y * z + x * w); R[8] = 1 - 2 * (x * x + y * y);
+    for (int a = 0; a < 3; ++a) t[a] = t_in[a];
+  }
+  void local(const T p[3], T out[3]) const {
+    T d0 = p[0] - t[0], d1 = p[1] - t[1], d2 = p[2] - t[2];
+    for (int a = 0; a < 3; ++a) out[a] = d0 * R[a] + d1 * R[3 + a] + d2 * R[6 + a];
+  }
+};
+
+// Object motion from pose a to pose b as interpolate_poses does it (lerp + short-arc nlerp).
+template <typename T>
+struct Motion {
+  T q0[4], q1[4], t0[3], t1[3], qb[4], tb[3];
+  void set(const T* pa, const T* pb) {
+    T na = std::sqrt(pa[3] * pa[3] + pa[4] * pa[4] + pa[5] * pa[5] + pa[6] * pa[6]);
+    T nb = std::sqrt(pb[3] * pb[3] + pb[4] * pb[4] + pb[5] * pb[5] + pb[6] * pb[6]);
+    T dot = 0;
+    for (int a = 0; a < 4; ++a) { q0[a] = pa[3 + a] / na; q1[a] = pb[3 + a] / nb; dot += q0[a] * q1[a]; }
+    T sign = dot < 0 ? T(-1) : T(1);
+    for (int a = 0; a < 4; ++a) { q1[a] *= sign; qb[a] = pb[3 + a]; }
+    for (int a = 0; a < 3; ++a) { t0[a] = pa[a]; t1[a] = pb[a]; tb[a] = pb[a]; }
+  }
+  // Frame a fraction f of the way; at the last piece the end pose itself (as collide_move).
+  void frame(T f, bool last, Frame<T>& fr) const {
+    if (last) { fr.set(qb, tb); return; }
+    T q[4], t[3];
+    for (int a = 0; a < 4; ++a) q[a] = q0[a] + (q1[a] - q0[a]) * f;
+    for (int a = 0; a < 3; ++a) t[a] = t0[a] + (t1[a] - t0[a]) * f;
+    T nn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    for (int a = 0; a < 4; ++a) q[a] /= nn;
+    fr.set(q, t);
+  }
+};
+
+template <typename T>
+std::vector<Grid<T>> make_grids(const std::vector<torch::Tensor>& grids, const torch::Tensor& origins,
+                                const torch::Tensor& cells) {
+  const int64_t m = static_cast<int64_t>(grids.size());
+  TORCH_CHECK(origins.dim() == 2 && origins.size(0) == m && origins.size(1) == 3, "origins must be (M, 3)");
+  TORCH_CHECK(cells.dim() == 1 && cells.size(0) == m, "cells must be (M,)");
+  auto o = origins.to(torch::kDouble).contiguous();
+  auto c = cells.to(torch::kDouble).contiguous();
+  const double* po = o.data_ptr<double>();
+  const double* pc = c.data_ptr<double>();
+  std::vector<Grid<T>> out(m);
+  for (int64_t j = 0; j < m; ++j) {
+    const auto& g = grids[j];
+    TORCH_CHECK(g.dim() == 3 && g.is_contiguous() && g.device().is_cpu(), "SDF grids must be contiguous CPU (nx, ny, nz)");
+    TORCH_CHECK(g.scalar_type() == c10::CppTypeToScalarType<T>::value, "SDF grids must have the particles' dtype");
+    TORCH_CHECK(g.size(0) >= 2 && g.size(1) >= 2 && g.size(2) >= 2, "SDF grids need >= 2 nodes per axis");
+    out[j].v = g.data_ptr<T>();
+    for (int a = 0; a < 3; ++a) {
+      out[j].n[a] = g.size(a);
+      out[j].origin[a] = static_cast<T>(po[3 * j + a]);
+      out[j].extent[a] = static_cast<T>(g.size(a) - 1);
+    }
+    out[j].cell = static_cast<T>(pc[j]);
+  }
+  return out;
+}
+
+// Lower bound on every object's SDF at every point: (N, 3) points, (M, 7) poses -> (N, M).
+torch::Tensor lower_bounds(torch::Tensor x, torch::Tensor poses, std::vector<torch::Tensor> grids,
+                           torch::Tensor origins, torch::Tensor cells) {
+  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.device().is_cpu(), "points must be CPU (N, 3)");
+  x = x.contiguous();
+  poses = poses.to(x.scalar_type()).contiguous();
+  const int64_t n = x.size(0), m = static_cast<int64_t>(grids.size());
+  TORCH_CHECK(poses.dim() == 2 && poses.size(0) == m && poses.size(1) == 7, "poses must be (M, 7)");
+  auto out = torch::empty({n, m}, x.options());
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "lower_bounds", [&] {
+    using T = scalar_t;
+    auto gs = make_grids<T>(grids, origins, cells);
+    const T* pp = poses.data_ptr<T>();
+    std::vector<Frame<T>> frames(m);
+    for (int64_t j = 0; j < m; ++j) frames[j].set(pp + 7 * j + 3, pp + 7 * j);
+    const T* px = x.data_ptr<T>();
+    T* o = out.data_ptr<T>();
+    at::parallel_for(0, n, 256, [&](int64_t b, int64_t e) {
+      for (int64_t i = b; i < e; ++i)
+        for (int64_t j = 0; j < m; ++j) {
+          T loc[3];
+          frames[j].local(px + 3 * i, loc);
+          o[i * m + j] = gs[j].lower_bound(loc);
+        }
+    });
+  });
+  return out;
+}
+
+// The collision plan of liquidtwin/sim/collide.py (plan_collisions), same decisions:
+// object j takes part for particle i when lower_bound_ij < (reach_i + push_ij) + sweep_j +
+// margin_j, push_ij the largest sweep of another object i takes part in (grown to a fixed
+// point per particle); object j needs S_j = max(1, ceil((max_i (reach_i + push_ij) + sweep_j)
+// / thin_j)) pieces and particle i moves in max_j S_j of them (or `forced` when > 0), capped
+// at max_pieces. Returns idx (R,), active (R, M) bool, pieces (R,), counts (S_max,)
+// (counts[s-1] = rows with >= s pieces), and the uncapped largest piece count (0-d).
+std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Tensor pose_a,
+                                std::vector<torch::Tensor> grids, torch::Tensor origins, torch::Tensor cells,
+                                torch::Tensor sweep, torch::Tensor margin, torch::Tensor thin, int64_t max_pieces,
+                                int64_t forced) {
+  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.device().is_cpu(), "positions must be CPU (N, 3)");
+  TORCH_CHECK(delta.sizes() == x.sizes(), "delta must match positions");
+  TORCH_CHECK(max_pieces >= 1, "max_pieces must be >= 1");
+  x = x.contiguous();
+  delta = delta.to(x.scalar_type()).contiguous();
+  pose_a = pose_a.to(x.scalar_type()).contiguous();
+  sweep = sweep.to(x.scalar_type()).contiguous();
+  margin = margin.to(x.scalar_type()).contiguous();
+  thin = thin.to(torch::kDouble).contiguous();
+  const int64_t n = x.size(0), m = static_cast<int64_t>(grids.size());
+  TORCH_CHECK(pose_a.dim() == 2 && pose_a.size(0) == m && pose_a.size(1) == 7, "poses must be (M, 7)");
+  TORCH_CHECK(sweep.numel() == m && margin.numel() == m && thin.numel() == m, "sweep, margin, thin must be (M,)");
+  std::vector<uint8_t> act(n * m, 0);
+  std::vector<int64_t> count(n, 0), per_object(m, 0);
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "collide_plan", [&] {
+    using T = scalar_t;
+    auto gs = make_grids<T>(grids, origins, cells);
+    const T* pp = pose_a.data_ptr<T>();
+    std::vector<Frame<T>> frames(m);
+    for (int64_t j = 0; j < m; ++j) frames[j].set(pp + 7 * j + 3, pp + 7 * j);
+    const T* px = x.data_ptr<T>();
+    const T* pd = delta.data_ptr<T>();
+    const T* sw = sweep.data_ptr<T>();
+    const T* mg = margin.data_ptr<T>();
+    const bool grow = m > 1 && std::any_of(sw, sw + m, [](T v) { return v > 0; });
+    std::vector<T> travel(n * m, T(0));
+    at::parallel_for(0, n, 256, [&](int64_t b, int64_t e) {
+      std::vector<T> start(m), push(m, T(0));
+      std::vector<uint8_t> grown(m);
+      for (int64_t i = b; i < e; ++i) {
+        const T dx = pd[3 * i], dy = pd[3 * i + 1], dz = pd[3 * i + 2];
+        const T reach = std::sqrt(dx * dx + dy * dy + dz * dz);
+        uint8_t* a = act.data() + i * m;
+        for (int64_t j = 0; j < m; ++j) {
+          T loc[3];
+          frames[j].local(px + 3 * i, loc);
+          start[j] = gs[j].lower_bound(loc);
+          push[j] = 0;
+          a[j] = start[j] < ((reach + push[j]) + sw[j]) + mg[j];
+        }
+        for (int64_t round = 0; grow && round < m; ++round) {
+          for (int64_t j = 0; j < m; ++j) {  // largest sweep of another object i takes part in
+            T p = 0;
+            for (int64_t k = 0; k < m; ++k) if (k != j && a[k]) p = std::max(p, sw[k]);
+            push[j] = p;
+          }
+          bool same = true;
+          for (int64_t j = 0; j < m; ++j) {
+            grown[j] = start[j] < ((reach + push[j]) + sw[j]) + mg[j];
+            same &= grown[j] == a[j];
+          }
+          if (same) break;
+          std::copy(grown.begin(), grown.end(), a);
+        }
+        for (int64_t j = 0; j < m; ++j) travel[i * m + j] = reach + push[j];
+      }
+    });
+    for (int64_t j = 0; j < m; ++j) {
+      bool any = false;
+      T longest = 0;
+      for (int64_t i = 0; i < n; ++i)
+        if (act[i * m + j]) { longest = any ? std::max(longest, travel[i * m + j]) : travel[i * m + j]; any = true; }
+      if (any) {
+        const double need = std::ceil((static_cast<double>(longest) + static_cast<double>(sw[j])) /
+                                      thin.data_ptr<double>()[j]);
+        per_object[j] = std::max<int64_t>(1, static_cast<int64_t>(need));
+      }
+    }
+  });
+  int64_t most = 0, rows = 0;
+  for (int64_t i = 0; i < n; ++i) {
+    int64_t c = 0;
+    for (int64_t j = 0; j < m; ++j) if (act[i * m + j]) c = std::max(c, per_object[j]);
+    if (c > 0 && forced > 0) c = forced;
+    most = std::max(most, c);
+    count[i] = std::min(c, max_pieces);
+    rows += c > 0;
+  }
+  const int64_t top = std::min(most, max_pieces);
+  // Stable counting sort by piece count, most first.
+  std::vector<int64_t> hist(top + 2, 0);
+  for (int64_t i = 0; i < n; ++i) if (count[i] > 0) ++hist[count[i]];
+  auto counts_t = torch::zeros({top}, torch::kInt64);
+  int64_t* counts = counts_t.data_ptr<int64_t>();
+  std::vector<int64_t> pos(top + 2, 0);
+  int64_t acc = 0;
+  for (int64_t c = top; c >= 1; --c) { pos[c] = acc; acc += hist[c]; counts[c - 1] = acc; }
+  auto idx_t = torch::empty({rows}, torch::kInt64);
+  auto pieces_t = torch::empty({rows}, torch::kInt64);
+  auto active_t = torch::empty({rows, m}, torch::kBool);
+  int64_t* idx = idx_t.data_ptr<int64_t>();
+  int64_t* pcs = pieces_t.data_ptr<int64_t>();
+  bool* av = active_t.data_ptr<bool>();
+  for (int64_t i = 0; i < n; ++i) {
+    if (count[i] == 0) continue;
+    const int64_t r = pos[count[i]]++;
+    idx[r] = i;
+    pcs[r] = count[i];
+    for (int64_t j = 0; j < m; ++j) av[r * m + j] = act[i * m + j] != 0;
+  }
+  return {idx_t, active_t, pieces_t, counts_t, torch::tensor(most, torch::kInt64)};
+}
+
+// Anti-clipped move of the planned particles. Particle idx[r] moves by delta in pieces[r]
+// equal pieces; after piece k it is pushed out of its active objects (active[r, j]) posed a
+// fraction k / pieces[r] of the way from pose_a to pose_b (pose_b itself at the last piece,
+// pose_b throughout when `fixed`). Everyone else moves by delta. Returns (N, 3) positions.
+torch::Tensor collide_pieces(torch::Tensor x, torch::Tensor delta, torch::Tensor pose_a, torch::Tensor pose_b,
+                             std::vector<torch::Tensor> grids, torch::Tensor origins, torch::Tensor cells,
+                             torch::Tensor idx, torch::Tensor active, torch::Tensor pieces,
+                             double collision_distance, double dilation, bool fixed) {
+  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.device().is_cpu(), "positions must be CPU (N, 3)");
+  TORCH_CHECK(delta.sizes() == x.sizes(), "delta must match positions");
+  x = x.contiguous();
+  delta = delta.to(x.scalar_type()).contiguous();
+  pose_a = pose_a.to(x.scalar_type()).contiguous();
+  pose_b = pose_b.to(x.scalar_type()).contiguous();
+  idx = idx.to(torch::kInt64).contiguous();
+  pieces = pieces.to(torch::kInt64).contiguous();
+  active = active.to(torch::kUInt8).contiguous();
+  const int64_t n = x.size(0), m = static_cast<int64_t>(grids.size()), rows = idx.size(0);
+  TORCH_CHECK(pose_a.dim() == 2 && pose_a.size(0) == m && pose_a.size(1) == 7 && pose_b.sizes() == pose_a.sizes(),
+              "poses must be (M, 7)");
+  TORCH_CHECK(pieces.size(0) == rows && active.dim() == 2 && active.size(0) == rows && active.size(1) == m,
+              "plan tensors must be idx (R,), active (R, M), pieces (R,)");
+  auto out = x + delta;
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "collide_pieces", [&] {
+    using T = scalar_t;
+    auto gs = make_grids<T>(grids, origins, cells);
+    std::vector<Motion<T>> motion(m);
+    for (int64_t j = 0; j < m; ++j) motion[j].set(pose_a.data_ptr<T>() + 7 * j, pose_b.data_ptr<T>() + 7 * j);
+    const T* px = x.data_ptr<T>();
+    const T* pd = delta.data_ptr<T>();
+    const int64_t* pi = idx.data_ptr<int64_t>();
+    const int64_t* ps = pieces.data_ptr<int64_t>();
+    const uint8_t* pa = active.data_ptr<uint8_t>();
+    T* po = out.data_ptr<T>();
+    const T cd = static_cast<T>(collision_distance), dil = static_cast<T>(dilation);
+    const T inf = std::numeric_limits<T>::infinity();
+    for (int64_t r = 0; r < rows; ++r)
+      TORCH_CHECK(pi[r] >= 0 && pi[r] < n && ps[r] >= 1, "bad collision plan (index or piece count)");
+    at::parallel_for(0, rows, 16, [&](int64_t b, int64_t e) {
+      std::vector<Frame<T>> fr(m);
+      std::vector<int64_t> act;
+      for (int64_t r = b; r < e; ++r) {
+        const int64_t i = pi[r], S = ps[r];
+        act.clear();
+        for (int64_t j = 0; j < m; ++j) if (pa[r * m + j]) act.push_back(j);
+        T p[3], d[3];
+        for (int a = 0; a < 3; ++a) { p[a] = px[3 * i + a]; d[a] = pd[3 * i + a] / static_cast<T>(S); }
+        if (fixed) for (int64_t j : act) motion[j].frame(T(1), true, fr[j]);
+        for (int64_t k = 1; k <= S; ++k) {
+          for (int a = 0; a < 3; ++a) p[a] = p[a] + d[a];
+          if (!fixed) {
+            const T f = static_cast<T>(static_cast<double>(k) / static_cast<double>(S));
+            for (int64_t j : act) motion[j].frame(f, k == S, fr[j]);
+          }
+          T centre = inf;
+          for (int64_t j : act) {
+            T loc[3];
+            fr[j].local(p, loc);
+            centre = std::min(centre, gs[j].value(loc));
+          }
+          if (!(centre < cd)) continue;  // depth ReLU(c - SDF) = 0: no push
+          T g[3];
+          for (int a = 0; a < 3; ++a) {
+            T lo = inf, hi = inf;
+            for (int64_t j : act) {
+              T q[3] = {p[0], p[1], p[2]}, loc[3];
+              q[a] = p[a] + -dil;
+              fr[j].local(q, loc);
+              lo = std::min(lo, gs[j].value(loc));
+              q[a] = p[a] + dil;
+              fr[j].local(q, loc);
+              hi = std::min(hi, gs[j].value(loc));
+            }
+            g[a] = hi - lo;
+          }
+          T len = std::max(std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]), static_cast<T>(1e-12));
+          const T depth = cd - centre;
+          for (int a = 0; a < 3; ++a) p[a] = p[a] + depth * (g[a] / len);
+        }
+        for (int a = 0; a < 3; ++a) po[3 * i + a] = p[a];
+      }
+    });
+  });
+  return out;
+}
+
+}  // namespace collide
