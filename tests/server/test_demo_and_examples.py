@@ -112,7 +112,7 @@ def test_demo_records_a_readable_mcap(tmp_path, scene):
 
 def test_every_example_has_a_docstring_and_runs_in_the_test_suite():
     names = sorted(p.name for p in EXAMPLES.glob("[0-9][0-9]_*.py"))
-    assert names == ["01_step_and_gradient.py", "02_pour_demo.py"], "add a test for a new example"
+    assert names == ["01_step_and_gradient.py", "02_pour_demo.py", "03_generate_and_read.py"], "add a test for a new example"
     for name in names:
         source = (EXAMPLES / name).read_text()
         assert source.startswith('"""'), f"{name} has no module docstring"
@@ -133,6 +133,14 @@ def test_example_02_pour_demo(tmp_path):
     clouds = read_mcap(out)["/particles"]
     assert len(clouds) == 3  # t = 0, step 4, step 8
     assert all(np.isfinite(cloud_points(c)).all() for _, _, c in clouds)
+
+
+def test_example_03_generate_and_read(tmp_path):
+    text = run(EXAMPLES / "03_generate_and_read.py", "--steps", "70", "--out", tmp_path / "g.mcap").stdout
+    plain = float(re.search(r"plain: .* mean IOU (\S+)", text).group(1))
+    off = float(re.search(r"camera_offset=2.0: .* mean IOU (\S+)", text).group(1))
+    assert plain > 0.2 and off < 0.5 * plain, text       # a 2° calibration error costs most of the overlap
+    assert (tmp_path / "g_plain.mcap").exists() and (tmp_path / "g_camera_offset.mcap").exists()
 
 
 # ------------------------------------------------------------------ liquid_volumes

@@ -71,3 +71,19 @@ def test_unreadable_files(tmp_path):
         load_spec(tmp_path / "b.json")
     with pytest.raises(SpecError, match="cannot read"):
         load_spec(tmp_path / "missing.json")
+
+
+def test_a_generated_recordings_spec_builds_its_objects(tmp_path):
+    from liquidtwin.generate import build_setup
+    from liquidtwin.generate.generator import scene_spec
+    setup = build_setup("pour_hold", np.random.default_rng(4), quick=True)
+    spec = scene_spec(setup)
+    save_spec(spec, tmp_path / "scene.json")
+    objs = scene_objects(load_spec(tmp_path / "scene.json"))
+    assert [n for n, _, _ in objs] == list(setup.names)
+    for (name, model, pose), item in zip(objs, setup.objects):
+        assert np.allclose(pose, setup.poses_at(0.0)[setup.index(name)])
+        if item.model is not None:
+            assert model.mesh.volume == pytest.approx(item.model.mesh.volume, rel=1e-9)
+    table = objs[-1][1]
+    assert table.mesh.bounds[1][1] == pytest.approx(0.0) and table.mesh.is_watertight

@@ -25,11 +25,16 @@ import math
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from google.protobuf import json_format
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..geometry import MODELS, build, container_from_mesh, load_mesh
 from ..geometry.object_model import ObjectModel
+
+#: The table under a scene: a 90 cm slab whose top face is y = 0 (model name ``"table"``).
+TABLE_MODEL = "table"
+TABLE_SIZE = (0.9, 0.04, 0.9)
 
 #: Simulation settings used when a spec leaves them at zero.
 DEFAULT_SIMULATION = {"h": 0.011, "dt": 1.0 / 120.0, "iterations": 4}
@@ -66,9 +71,9 @@ def check_spec(spec: pb.SceneSpec, source: str = "scene spec") -> None:
     if len(set(names)) != len(names) or "" in names:
         raise SpecError(f"{source}: object names must be unique and non-empty, got {names}")
     for o in spec.objects:
-        if o.model != "mesh" and o.model not in MODELS:
+        if o.model not in ("mesh", TABLE_MODEL) and o.model not in MODELS:
             raise SpecError(f"{source}: object {o.name!r}: unknown model {o.model!r}; "
-                            f"use 'mesh' or one of {', '.join(MODELS)}")
+                            f"use 'mesh', 'table' or one of {', '.join(MODELS)}")
         if o.model == "mesh" and not o.mesh_uri:
             raise SpecError(f"{source}: object {o.name!r}: model 'mesh' needs mesh_uri")
         pose = list(o.initial_pose)
@@ -128,6 +133,10 @@ def scene_objects(spec: pb.SceneSpec, base_dir=".") -> list[tuple[str, ObjectMod
     for o in spec.objects:
         if o.model == "mesh":
             model = _mesh_object(o, Path(base_dir))
+        elif o.model == TABLE_MODEL:
+            slab = trimesh.creation.box(extents=TABLE_SIZE)
+            slab.apply_translation([0.0, -0.5 * TABLE_SIZE[1], 0.0])
+            model = ObjectModel(o.name, slab, 0.5 * TABLE_SIZE[1])
         else:
             try:
                 model = build(o.model, **dict(o.params))
