@@ -63,6 +63,7 @@ def build_world(setup, effects, rng: np.random.Generator) -> World:
     base = FluidModel.create(setup.h, dt=setup.dt, iterations=WORLD_ITERATIONS, relaxation=MODEL_RELAXATION,
                              objects=objects)
     params = world_params(rng, base.params.as_dict())
+    settle_params = dict(params)      # the fill settles without the effect's physics
     terms = []
     stated = dict(setup.fills)
     fill = dict(stated)
@@ -91,7 +92,7 @@ def build_world(setup, effects, rng: np.random.Generator) -> World:
             fill = {k: ml * (1.0 + v) for k, ml in fill.items()}
     model = base.replace(objects=tuple(objects), terms=tuple(terms)).with_params(**params)
     # Containers are filled and settled before the effect starts (a leak opens, wind rises).
-    filler = base.with_params(**params)
+    filler = base.with_params(**settle_params)
     return World(model, filler, model.params.as_dict(), fill, stated, tuple(effects))
 
 
