@@ -18,17 +18,12 @@ import torch
 import trimesh
 
 from liquidtwin.geometry.mesh_sdf import mesh_sdf_grid
+from liquidtwin.scenes.shapes import cup_mesh
 
 
 def revolved_cup(radius=0.04, height=0.10, wall=0.003, sections=64) -> trimesh.Trimesh:
     """Open-top cup (inner radius, total height, wall, m) standing on y = 0, opening up (+y)."""
-    r, h, w = radius, height, wall
-    profile = np.array([[0, 0], [r + w, 0], [r + w, h], [r, h], [r, w], [0, w]])
-    mesh = trimesh.creation.revolve(profile[::-1], sections=sections)  # about z
-    mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
-    if mesh.volume < 0:
-        mesh.invert()
-    return mesh
+    return cup_mesh(radius, height, wall, sections)
 
 
 def _time(what: str, mesh, thickness: float, args) -> None:

@@ -37,13 +37,7 @@ def _winding_vos(points: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:
 
 def _cup_mesh(radius, height, wall, sections) -> trimesh.Trimesh:
     """Thin-walled cup revolved about y (standing on y = 0, open at the top)."""
-    r, h, w = radius, height, wall
-    profile = np.array([[0, 0], [r + w, 0], [r + w, h], [r, h], [r, w], [0, w]])
-    mesh = trimesh.creation.revolve(profile[::-1], sections=sections)  # about z
-    mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
-    if mesh.volume < 0:
-        mesh.invert()
-    return mesh
+    return shapes.cup_mesh(radius, height, wall, sections)
 
 
 def _octahedron(a: float) -> trimesh.Trimesh:

@@ -79,6 +79,15 @@ def _coverage_torch(counts: torch.Tensor, stencil: np.ndarray) -> torch.Tensor:
     return F.conv2d(counts[None, None], k)[0, 0]  # 'valid' → (H, W)
 
 
+def _disc_counts(uv, visible, height, width, radius_px):
+    """Checked sizes, the disc's integer reach R, per-pixel particle counts on the image padded
+    by R, and the disc stencil: what coverage and model_mask share."""
+    H, W = _check_size(height, width)
+    uv = _visible_uv(uv, visible)
+    _, R = _check_radius(radius_px)
+    return H, W, R, _counts(uv, H, W, R), disc_stencil(radius_px)
+
+
 def coverage(uv, visible, height: int, width: int, radius_px: float = 5.0) -> torch.Tensor:
     """Coverage Φ: how many visible particle discs cover each pixel.
 
@@ -90,11 +99,7 @@ def coverage(uv, visible, height: int, width: int, radius_px: float = 5.0) -> to
     Returns:
       (H, W) int32 on uv's device.
     """
-    H, W = _check_size(height, width)
-    uv = _visible_uv(uv, visible)
-    _, R = _check_radius(radius_px)
-    counts = _counts(uv, H, W, R)
-    stencil = disc_stencil(radius_px)
+    H, W, R, counts, stencil = _disc_counts(uv, visible, height, width, radius_px)
     if counts.device.type != "cpu":
         return torch.round(_coverage_torch(counts, stencil)).to(torch.int32)
     out = cv2.filter2D(counts.numpy(), cv2.CV_32F, stencil.astype(np.float32),
@@ -107,11 +112,7 @@ def model_mask(uv, visible, height: int, width: int, radius_px: float = 5.0) -> 
 
     Args: as :func:`coverage`. Returns: (H, W) bool on uv's device, equal to ``coverage > 0``.
     """
-    H, W = _check_size(height, width)
-    uv = _visible_uv(uv, visible)
-    _, R = _check_radius(radius_px)
-    counts = _counts(uv, H, W, R)
-    stencil = disc_stencil(radius_px)
+    H, W, R, counts, stencil = _disc_counts(uv, visible, height, width, radius_px)
     if counts.device.type != "cpu":
         return _coverage_torch(counts, stencil) > 0.5
     hit = (counts.numpy() > 0).astype(np.uint8)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+import trimesh
 
 from ..sim.sdf import SDFGrid
 
@@ -108,3 +109,15 @@ def floor_grid(half_xz=1.0, depth=0.05, cell=0.02) -> SDFGrid:
     return sample_grid(lambda p: box(p, (half_xz, 0.5 * depth, half_xz), (0, -0.5 * depth, 0)),
                        (-half_xz - 2 * cell, -depth - 2 * cell, -half_xz - 2 * cell),
                        (half_xz + 2 * cell, 2 * cell, half_xz + 2 * cell), cell, depth, "floor")
+
+
+def cup_mesh(radius: float = 0.04, height: float = 0.10, wall: float = 0.003, sections: int = 64) -> trimesh.Trimesh:
+    """Triangle mesh of :func:`cup`'s shape (inner radius, total height, wall, m): a
+    thin-walled cup revolved about y, standing on y = 0, open at the top; outward normals."""
+    r, h, w = radius, height, wall
+    profile = np.array([[0, 0], [r + w, 0], [r + w, h], [r, h], [r, w], [0, w]])
+    mesh = trimesh.creation.revolve(profile[::-1], sections=sections)  # about z
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh
