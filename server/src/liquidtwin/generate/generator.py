@@ -121,16 +121,18 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
     true_poses = np.stack([setup.poses_at(k * setup.dt) for k in pose_steps])
     written = noisy_poses(true_poses, rng, PoseNoise() if noise else PoseNoise.NONE)
 
-    # Camera frames at CAMERA_HZ; the image stamped t shows the world at t − offset.
+    # Camera frames at CAMERA_HZ, every few pose samples; the image stamped t shows the world
+    # at t − offset.
     offset = sum(e.value for e in effs if e.name == "time_offset")
-    cam_every = max(1, round(1.0 / (CAMERA_HZ * setup.dt)))
-    frame_steps = np.arange(0, steps + 1, cam_every)
+    frame_of = {int(i): j for j, i in enumerate(range(0, len(pose_steps), max(1, round(POSE_HZ / CAMERA_HZ))))}
+    frame_steps = pose_steps[list(frame_of)]
     keep = dropped_frames(len(frame_steps), rng) if noise else np.ones(len(frame_steps), bool)
     mask_noise = _mask_noise(rng) if noise else MaskNoise.NONE
-    radius = particle_radius(0.55 * setup.h)
+    radius = particle_radius(world.model.spacing)
     meshes = [o.model.mesh if o.model is not None else None for o in setup.objects]
     # Occluders: the objects, not the table (the camera and the liquid are above it).
     solid = [k for k, o in enumerate(setup.objects) if o.name != catalog.TABLE]
+    occluders = [world.model.objects[k] for k in solid]
     colors = rng.uniform(0.15, 0.9, (len(meshes), 3))
     look = RGBParams.sample(rng) if rgb else None      # one table, texture and lighting per recording
 
@@ -142,12 +144,11 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
         for cam in setup.cameras:
             rec.write_camera(cam.name, _camera_info(_stated_camera(cam, effs)), START_NS)
         t_pose = START_NS + np.round(pose_steps * setup.dt * 1e9).astype(np.int64)
-        frames = {int(s): i for i, s in enumerate(frame_steps)}
         written_frames = 0
         for i, k in enumerate(pose_steps):
             rec.write_poses(int(t_pose[i]), setup.names, written[i])
-            if int(k) in frames:
-                j = frames[int(k)]
+            if i in frame_of:
+                j = frame_of[i]
                 bar.update()
                 if not keep[j]:
                     continue
@@ -156,8 +157,7 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
                 poses_w = torch.as_tensor(setup.poses_at(kw * setup.dt))
                 stamp = int(t_pose[i])
                 for cam in setup.cameras:
-                    mask, thick = liquid_mask(cam, torch.from_numpy(x[kw]),
-                                              [world.model.objects[k] for k in solid], poses_w[solid], radius)
+                    mask, thick = liquid_mask(cam, torch.from_numpy(x[kw]), occluders, poses_w[solid], radius)
                     rec.write_mask(cam.name, stamp, corrupt_mask(mask, rng, mask_noise))
                     if rgb:
                         labels = object_labels(cam, meshes, poses_w.numpy())

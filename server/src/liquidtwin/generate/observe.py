@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from ..camera import Camera, visible
-from ..camera.render import coverage, model_mask
+from ..camera.render import coverage
 from ..scenes.motions import transform
 
 
@@ -40,16 +40,15 @@ def liquid_mask(camera: Camera, x: torch.Tensor, objects, poses: torch.Tensor, r
     seen = visible(camera, x, objects, poses.to(torch.float64), margin_px=12.0, near=0.02)
     uv, depth = camera.project(x)
     uv, depth = uv[seen], depth[seen]
-    mask = np.zeros((H, W), bool)
     thick = np.zeros((H, W), np.float32)
+    mask = np.zeros((H, W), bool)
     if uv.shape[0]:
         r_px = (camera.fx * radius_m / depth).clamp(0.6, 40.0)
         # Group by radius rounded to half pixels: one exact disc render per group.
         key = torch.round(r_px * 2.0) / 2.0
         for r in torch.unique(key):
-            sel = key == r
-            mask |= model_mask(uv[sel], None, H, W, radius_px=float(r)).numpy()
-            thick += coverage(uv[sel], None, H, W, radius_px=float(r)).numpy().astype(np.float32)
+            thick += coverage(uv[key == r], None, H, W, radius_px=float(r)).numpy().astype(np.float32)
+        mask = thick > 0                                 # model_mask ≡ coverage > 0
     if blur_px > 0:
         soft = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), blur_px)
         mask = soft > 0.5

@@ -17,7 +17,8 @@ import torch
 from tqdm.auto import tqdm
 
 from ..scenes.fill import fill_container
-from ..sim import SDFGrid, FluidModel, QuadraticDrag, UniformAcceleration, WallAdhesion, carve, cylinder_sdf, solidify, step
+from ..sim import (FluidModel, QuadraticDrag, SDFGrid, UniformAcceleration, WallAdhesion, carve, make_state,
+                   solidify, step)
 from .effects import Effect
 
 #: liquidtwin's model settings for generated scenes (what a server would use).
@@ -34,17 +35,20 @@ class World:
     Attributes:
       model: the world's FluidModel (objects possibly edited by the effect, extra terms).
       filler: the same world without the effect's terms and edits, used to settle the fill.
-      params: the world's fluid parameters (dict, for the truth file).
       fill_ml: {container: true initial volume, ml}; stated_ml: what the recording states.
       effects: the hidden effects (usually none or one).
     """
 
     model: FluidModel
     filler: FluidModel
-    params: dict
     fill_ml: dict
     stated_ml: dict
     effects: tuple
+
+    @property
+    def params(self) -> dict:
+        """The world's fluid parameters (floats, for the truth file)."""
+        return self.model.params.as_dict()
 
 
 def world_params(rng: np.random.Generator, defaults: dict) -> dict:
@@ -93,7 +97,7 @@ def build_world(setup, effects, rng: np.random.Generator) -> World:
     model = base.replace(objects=tuple(objects), terms=tuple(terms)).with_params(**params)
     # Containers are filled and settled before the effect starts (a leak opens, wind rises).
     filler = base.with_params(**settle_params)
-    return World(model, filler, model.params.as_dict(), fill, stated, tuple(effects))
+    return World(model, filler, fill, stated, tuple(effects))
 
 
 def initial_state(world: World, setup, *, progress: bool = False):
@@ -114,10 +118,8 @@ def initial_state(world: World, setup, *, progress: bool = False):
 
 
 def _merge(a, b):
-    from ..sim import make_state
-    x = torch.cat([a.by_id()[0], b.by_id()[0]])
-    v = torch.cat([a.by_id()[1], b.by_id()[1]])
-    return make_state(x, v, poses=a.poses, dtype=a.x.dtype, t=a.t)
+    (xa, va), (xb, vb) = a.by_id(), b.by_id()
+    return make_state(torch.cat([xa, xb]), torch.cat([va, vb]), poses=a.poses, dtype=a.x.dtype, t=a.t)
 
 
 def simulate(world: World, setup, state, steps: int, *, progress: bool = False) -> np.ndarray:
