@@ -22,8 +22,9 @@ INSTALL_INPUTS := requirements.lock \
 	$(wildcard $(addsuffix /pyproject.toml,$(PACKAGES)) $(addsuffix /setup.py,$(PACKAGES))) \
 	$(wildcard server/csrc/*.cpp server/csrc/*.h)
 
-# Debian packages the test suite needs (installed by `make test` when missing); none yet.
-APT_PACKAGES :=
+# Debian packages the test suite needs (installed by `make test` when missing): chromium
+# drives the viewer test through Playwright (never `playwright install`).
+APT_PACKAGES := chromium
 
 .PHONY: venv test demo bench proto clean apt
 

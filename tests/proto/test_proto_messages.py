@@ -17,6 +17,48 @@ def _object() -> pb.SceneObject:
                           mesh_sha256="ab" * 32, initial_pose=[0, 0.2, 0, 0, 0, 0, 1], container=True)
 
 
+def _spec() -> pb.SceneSpec:
+    return pb.SceneSpec(
+        header=_header(0), name="pour_partial", objects=[_object()],
+        fills=[pb.Fill(container="cup", fraction=0.6)],
+        simulation=pb.SimulationSettings(h=0.011, dt=1 / 120, iterations=4, spacing=0.006),
+        motion="pour", motion_params={"tilt_deg": 95.0}, duration_s=6.0, cameras=["cam0"],
+    )
+
+
+def _session_spec() -> pb.SessionSpec:
+    return pb.SessionSpec(
+        scene=_spec(), cameras=[_camera()],
+        fluid=pb.FluidParameters(lambda_c=0.1, lambda_v=60.0, lambda_s=0.0, lambda_omega=1.0,
+                                 relaxation=4.0),
+        tracking=pb.WARP_FIELD, device="cpu", correction_gain=0.5)
+
+
+def _camera() -> pb.CameraSetup:
+    return pb.CameraSetup(name="cam0", width=640, height=480, k=[500, 0, 320, 0, 500, 240, 0, 0, 1],
+                          d=[0.01, 0, 0, 0, 0], pose=[0, 0.5, 0.5, 1, 0, 0, 0])
+
+
+def _task() -> pb.Task:
+    return pb.Task(pour=pb.Task.PourToVolume(source="cup", target="bowl", volume_ml=150.0,
+                                             max_angle_rad=2.0, max_rate_rad_s=0.5),
+                   controller="pid")
+
+
+def _status() -> pb.SessionStatus:
+    return pb.SessionStatus(
+        header=_header(3), session_id="pour-01", state="running", spec=_session_spec(),
+        sim_time_s=1.5, frames_done=45, particles=4096,
+        volumes=[pb.ContainerVolume(name="cup", ml=120.0)], task=_task(),
+        log_path="/var/liquidtwin/pour-01/log.mcap", checkpoint_path="/var/liquidtwin/pour-01/ckpt.pt",
+        restored=True, server_id="srv-1")
+
+
+def _overlay() -> pb.OverlayInfo:
+    return pb.OverlayInfo(camera="cam0", observed_only_rgb=0x0000FF, model_only_rgb=0xFF0000,
+                          overlap_rgb=0x00FF00, observed_px=100, model_px=90, overlap_px=80)
+
+
 SAMPLES = {
     "Header": _header(),
     "PackedArray": pb.PackedArray(shape=[2, 3], dtype="float32", data=bytes(range(24))),
@@ -31,13 +73,36 @@ SAMPLES = {
     "SceneObject": _object(),
     "Fill": pb.Fill(container="cup", volume_ml=150.0),
     "SimulationSettings": pb.SimulationSettings(h=0.011, dt=1 / 120, iterations=4, spacing=0.006),
-    "SceneSpec": pb.SceneSpec(
-        header=_header(0), name="pour_partial", objects=[_object()],
-        fills=[pb.Fill(container="cup", fraction=0.6)],
-        simulation=pb.SimulationSettings(h=0.011, dt=1 / 120, iterations=4, spacing=0.006),
-        motion="pour", motion_params={"tilt_deg": 95.0}, duration_s=6.0, cameras=["cam0"],
-    ),
+    "SceneSpec": _spec(),
+    "FluidParameters": pb.FluidParameters(lambda_c=0.1, lambda_v=60.0, lambda_s=0.01,
+                                          lambda_omega=1.0, relaxation=4.0),
+    "CameraSetup": _camera(),
+    "SessionSpec": _session_spec(),
+    "Task": _task(),
+    "Control": pb.Control(header=_header(9), object="cup", tilt_angle_rad=1.2, tilt_rate_rad_s=0.3,
+                          achieved_ml=40.0, remaining_ml=110.0, done=True, controller="pid"),
+    "OverlayInfo": _overlay(),
+    "Metrics": pb.Metrics(header=_header(10), input_seq=9, sim_time_s=0.3, iou=0.8, step_ms=12.0,
+                          correction_ms=3.0, lag_ms=20.0, sim_lag_s=0.01, particles=4096, steps=4,
+                          frames_in=10, frames_done=9, dropped_stale=1, dropped_out_of_order=2,
+                          rejected=3, overlay=_overlay()),
+    "SessionStatus": _status(),
+    "CreateSessionRequest": pb.CreateSessionRequest(header=_header(0), session_id="pour-01",
+                                                    spec=_session_spec(), client_id="robot-7"),
+    "ListSessionsRequest": pb.ListSessionsRequest(header=_header(0)),
+    "ListSessionsReply": pb.ListSessionsReply(header=_header(1), server_id="srv-1",
+                                              sessions=[_status()]),
+    "SessionRequest": pb.SessionRequest(header=_header(2)),
+    "SetTaskRequest": pb.SetTaskRequest(header=_header(4), task=_task()),
 }
+
+
+@pytest.mark.parametrize("field", ["lambda_c", "lambda_v", "lambda_s", "lambda_omega", "relaxation"])
+def test_fluid_parameters_tell_zero_from_unset(field):
+    """A fluid parameter of 0 (e.g. no surface tension) differs from "use the default"."""
+    zero = pb.FluidParameters(**{field: 0.0})
+    again = pb.FluidParameters.FromString(zero.SerializeToString())
+    assert again.HasField(field) and not pb.FluidParameters().HasField(field)
 
 
 def test_every_message_has_a_sample():

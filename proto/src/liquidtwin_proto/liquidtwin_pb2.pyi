@@ -12,9 +12,22 @@ class ProtocolVersion(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     PROTOCOL_VERSION_UNSPECIFIED: _ClassVar[ProtocolVersion]
     PROTOCOL_VERSION_1: _ClassVar[ProtocolVersion]
     PROTOCOL_VERSION_CURRENT: _ClassVar[ProtocolVersion]
+
+class TrackingMode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    TRACKING_MODE_UNSPECIFIED: _ClassVar[TrackingMode]
+    OPEN_LOOP: _ClassVar[TrackingMode]
+    WARP_FIELD: _ClassVar[TrackingMode]
+    MAP_FILTER: _ClassVar[TrackingMode]
+    SPNETS_PERCEPTION: _ClassVar[TrackingMode]
 PROTOCOL_VERSION_UNSPECIFIED: ProtocolVersion
 PROTOCOL_VERSION_1: ProtocolVersion
 PROTOCOL_VERSION_CURRENT: ProtocolVersion
+TRACKING_MODE_UNSPECIFIED: TrackingMode
+OPEN_LOOP: TrackingMode
+WARP_FIELD: TrackingMode
+MAP_FILTER: TrackingMode
+SPNETS_PERCEPTION: TrackingMode
 
 class Header(_message.Message):
     __slots__ = ("session_id", "seq", "stamp_ns", "version")
@@ -49,6 +62,10 @@ class Error(_message.Message):
         TOO_LARGE: _ClassVar[Error.Code]
         NON_FINITE: _ClassVar[Error.Code]
         INTERNAL: _ClassVar[Error.Code]
+        ALREADY_EXISTS: _ClassVar[Error.Code]
+        UNKNOWN_NAME: _ClassVar[Error.Code]
+        RESOURCE_EXHAUSTED: _ClassVar[Error.Code]
+        INFEASIBLE: _ClassVar[Error.Code]
     CODE_UNSPECIFIED: Error.Code
     BAD_REQUEST: Error.Code
     UNKNOWN_SESSION: Error.Code
@@ -56,6 +73,10 @@ class Error(_message.Message):
     TOO_LARGE: Error.Code
     NON_FINITE: Error.Code
     INTERNAL: Error.Code
+    ALREADY_EXISTS: Error.Code
+    UNKNOWN_NAME: Error.Code
+    RESOURCE_EXHAUSTED: Error.Code
+    INFEASIBLE: Error.Code
     HEADER_FIELD_NUMBER: _ClassVar[int]
     CODE_FIELD_NUMBER: _ClassVar[int]
     MESSAGE_FIELD_NUMBER: _ClassVar[int]
@@ -155,3 +176,216 @@ class SceneSpec(_message.Message):
     duration_s: float
     cameras: _containers.RepeatedScalarFieldContainer[str]
     def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., name: _Optional[str] = ..., objects: _Optional[_Iterable[_Union[SceneObject, _Mapping]]] = ..., fills: _Optional[_Iterable[_Union[Fill, _Mapping]]] = ..., simulation: _Optional[_Union[SimulationSettings, _Mapping]] = ..., motion: _Optional[str] = ..., motion_params: _Optional[_Mapping[str, float]] = ..., duration_s: _Optional[float] = ..., cameras: _Optional[_Iterable[str]] = ...) -> None: ...
+
+class FluidParameters(_message.Message):
+    __slots__ = ("lambda_c", "lambda_v", "lambda_s", "lambda_omega", "relaxation")
+    LAMBDA_C_FIELD_NUMBER: _ClassVar[int]
+    LAMBDA_V_FIELD_NUMBER: _ClassVar[int]
+    LAMBDA_S_FIELD_NUMBER: _ClassVar[int]
+    LAMBDA_OMEGA_FIELD_NUMBER: _ClassVar[int]
+    RELAXATION_FIELD_NUMBER: _ClassVar[int]
+    lambda_c: float
+    lambda_v: float
+    lambda_s: float
+    lambda_omega: float
+    relaxation: float
+    def __init__(self, lambda_c: _Optional[float] = ..., lambda_v: _Optional[float] = ..., lambda_s: _Optional[float] = ..., lambda_omega: _Optional[float] = ..., relaxation: _Optional[float] = ...) -> None: ...
+
+class CameraSetup(_message.Message):
+    __slots__ = ("name", "width", "height", "k", "d", "pose")
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    K_FIELD_NUMBER: _ClassVar[int]
+    D_FIELD_NUMBER: _ClassVar[int]
+    POSE_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    width: int
+    height: int
+    k: _containers.RepeatedScalarFieldContainer[float]
+    d: _containers.RepeatedScalarFieldContainer[float]
+    pose: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, name: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., k: _Optional[_Iterable[float]] = ..., d: _Optional[_Iterable[float]] = ..., pose: _Optional[_Iterable[float]] = ...) -> None: ...
+
+class SessionSpec(_message.Message):
+    __slots__ = ("scene", "cameras", "fluid", "tracking", "device", "correction_gain")
+    SCENE_FIELD_NUMBER: _ClassVar[int]
+    CAMERAS_FIELD_NUMBER: _ClassVar[int]
+    FLUID_FIELD_NUMBER: _ClassVar[int]
+    TRACKING_FIELD_NUMBER: _ClassVar[int]
+    DEVICE_FIELD_NUMBER: _ClassVar[int]
+    CORRECTION_GAIN_FIELD_NUMBER: _ClassVar[int]
+    scene: SceneSpec
+    cameras: _containers.RepeatedCompositeFieldContainer[CameraSetup]
+    fluid: FluidParameters
+    tracking: TrackingMode
+    device: str
+    correction_gain: float
+    def __init__(self, scene: _Optional[_Union[SceneSpec, _Mapping]] = ..., cameras: _Optional[_Iterable[_Union[CameraSetup, _Mapping]]] = ..., fluid: _Optional[_Union[FluidParameters, _Mapping]] = ..., tracking: _Optional[_Union[TrackingMode, str]] = ..., device: _Optional[str] = ..., correction_gain: _Optional[float] = ...) -> None: ...
+
+class Task(_message.Message):
+    __slots__ = ("pour", "controller")
+    class PourToVolume(_message.Message):
+        __slots__ = ("source", "target", "volume_ml", "max_angle_rad", "max_rate_rad_s")
+        SOURCE_FIELD_NUMBER: _ClassVar[int]
+        TARGET_FIELD_NUMBER: _ClassVar[int]
+        VOLUME_ML_FIELD_NUMBER: _ClassVar[int]
+        MAX_ANGLE_RAD_FIELD_NUMBER: _ClassVar[int]
+        MAX_RATE_RAD_S_FIELD_NUMBER: _ClassVar[int]
+        source: str
+        target: str
+        volume_ml: float
+        max_angle_rad: float
+        max_rate_rad_s: float
+        def __init__(self, source: _Optional[str] = ..., target: _Optional[str] = ..., volume_ml: _Optional[float] = ..., max_angle_rad: _Optional[float] = ..., max_rate_rad_s: _Optional[float] = ...) -> None: ...
+    POUR_FIELD_NUMBER: _ClassVar[int]
+    CONTROLLER_FIELD_NUMBER: _ClassVar[int]
+    pour: Task.PourToVolume
+    controller: str
+    def __init__(self, pour: _Optional[_Union[Task.PourToVolume, _Mapping]] = ..., controller: _Optional[str] = ...) -> None: ...
+
+class Control(_message.Message):
+    __slots__ = ("header", "object", "tilt_angle_rad", "tilt_rate_rad_s", "achieved_ml", "remaining_ml", "done", "controller")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    OBJECT_FIELD_NUMBER: _ClassVar[int]
+    TILT_ANGLE_RAD_FIELD_NUMBER: _ClassVar[int]
+    TILT_RATE_RAD_S_FIELD_NUMBER: _ClassVar[int]
+    ACHIEVED_ML_FIELD_NUMBER: _ClassVar[int]
+    REMAINING_ML_FIELD_NUMBER: _ClassVar[int]
+    DONE_FIELD_NUMBER: _ClassVar[int]
+    CONTROLLER_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    object: str
+    tilt_angle_rad: float
+    tilt_rate_rad_s: float
+    achieved_ml: float
+    remaining_ml: float
+    done: bool
+    controller: str
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., object: _Optional[str] = ..., tilt_angle_rad: _Optional[float] = ..., tilt_rate_rad_s: _Optional[float] = ..., achieved_ml: _Optional[float] = ..., remaining_ml: _Optional[float] = ..., done: _Optional[bool] = ..., controller: _Optional[str] = ...) -> None: ...
+
+class OverlayInfo(_message.Message):
+    __slots__ = ("camera", "observed_only_rgb", "model_only_rgb", "overlap_rgb", "observed_px", "model_px", "overlap_px")
+    CAMERA_FIELD_NUMBER: _ClassVar[int]
+    OBSERVED_ONLY_RGB_FIELD_NUMBER: _ClassVar[int]
+    MODEL_ONLY_RGB_FIELD_NUMBER: _ClassVar[int]
+    OVERLAP_RGB_FIELD_NUMBER: _ClassVar[int]
+    OBSERVED_PX_FIELD_NUMBER: _ClassVar[int]
+    MODEL_PX_FIELD_NUMBER: _ClassVar[int]
+    OVERLAP_PX_FIELD_NUMBER: _ClassVar[int]
+    camera: str
+    observed_only_rgb: int
+    model_only_rgb: int
+    overlap_rgb: int
+    observed_px: int
+    model_px: int
+    overlap_px: int
+    def __init__(self, camera: _Optional[str] = ..., observed_only_rgb: _Optional[int] = ..., model_only_rgb: _Optional[int] = ..., overlap_rgb: _Optional[int] = ..., observed_px: _Optional[int] = ..., model_px: _Optional[int] = ..., overlap_px: _Optional[int] = ...) -> None: ...
+
+class Metrics(_message.Message):
+    __slots__ = ("header", "input_seq", "sim_time_s", "iou", "step_ms", "correction_ms", "lag_ms", "sim_lag_s", "particles", "steps", "frames_in", "frames_done", "dropped_stale", "dropped_out_of_order", "rejected", "overlay")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    INPUT_SEQ_FIELD_NUMBER: _ClassVar[int]
+    SIM_TIME_S_FIELD_NUMBER: _ClassVar[int]
+    IOU_FIELD_NUMBER: _ClassVar[int]
+    STEP_MS_FIELD_NUMBER: _ClassVar[int]
+    CORRECTION_MS_FIELD_NUMBER: _ClassVar[int]
+    LAG_MS_FIELD_NUMBER: _ClassVar[int]
+    SIM_LAG_S_FIELD_NUMBER: _ClassVar[int]
+    PARTICLES_FIELD_NUMBER: _ClassVar[int]
+    STEPS_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_IN_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_DONE_FIELD_NUMBER: _ClassVar[int]
+    DROPPED_STALE_FIELD_NUMBER: _ClassVar[int]
+    DROPPED_OUT_OF_ORDER_FIELD_NUMBER: _ClassVar[int]
+    REJECTED_FIELD_NUMBER: _ClassVar[int]
+    OVERLAY_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    input_seq: int
+    sim_time_s: float
+    iou: float
+    step_ms: float
+    correction_ms: float
+    lag_ms: float
+    sim_lag_s: float
+    particles: int
+    steps: int
+    frames_in: int
+    frames_done: int
+    dropped_stale: int
+    dropped_out_of_order: int
+    rejected: int
+    overlay: OverlayInfo
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., input_seq: _Optional[int] = ..., sim_time_s: _Optional[float] = ..., iou: _Optional[float] = ..., step_ms: _Optional[float] = ..., correction_ms: _Optional[float] = ..., lag_ms: _Optional[float] = ..., sim_lag_s: _Optional[float] = ..., particles: _Optional[int] = ..., steps: _Optional[int] = ..., frames_in: _Optional[int] = ..., frames_done: _Optional[int] = ..., dropped_stale: _Optional[int] = ..., dropped_out_of_order: _Optional[int] = ..., rejected: _Optional[int] = ..., overlay: _Optional[_Union[OverlayInfo, _Mapping]] = ...) -> None: ...
+
+class SessionStatus(_message.Message):
+    __slots__ = ("header", "session_id", "state", "spec", "sim_time_s", "frames_done", "particles", "volumes", "task", "log_path", "checkpoint_path", "restored", "server_id")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    SPEC_FIELD_NUMBER: _ClassVar[int]
+    SIM_TIME_S_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_DONE_FIELD_NUMBER: _ClassVar[int]
+    PARTICLES_FIELD_NUMBER: _ClassVar[int]
+    VOLUMES_FIELD_NUMBER: _ClassVar[int]
+    TASK_FIELD_NUMBER: _ClassVar[int]
+    LOG_PATH_FIELD_NUMBER: _ClassVar[int]
+    CHECKPOINT_PATH_FIELD_NUMBER: _ClassVar[int]
+    RESTORED_FIELD_NUMBER: _ClassVar[int]
+    SERVER_ID_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    session_id: str
+    state: str
+    spec: SessionSpec
+    sim_time_s: float
+    frames_done: int
+    particles: int
+    volumes: _containers.RepeatedCompositeFieldContainer[ContainerVolume]
+    task: Task
+    log_path: str
+    checkpoint_path: str
+    restored: bool
+    server_id: str
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., state: _Optional[str] = ..., spec: _Optional[_Union[SessionSpec, _Mapping]] = ..., sim_time_s: _Optional[float] = ..., frames_done: _Optional[int] = ..., particles: _Optional[int] = ..., volumes: _Optional[_Iterable[_Union[ContainerVolume, _Mapping]]] = ..., task: _Optional[_Union[Task, _Mapping]] = ..., log_path: _Optional[str] = ..., checkpoint_path: _Optional[str] = ..., restored: _Optional[bool] = ..., server_id: _Optional[str] = ...) -> None: ...
+
+class CreateSessionRequest(_message.Message):
+    __slots__ = ("header", "session_id", "spec", "client_id")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    SPEC_FIELD_NUMBER: _ClassVar[int]
+    CLIENT_ID_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    session_id: str
+    spec: SessionSpec
+    client_id: str
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., spec: _Optional[_Union[SessionSpec, _Mapping]] = ..., client_id: _Optional[str] = ...) -> None: ...
+
+class ListSessionsRequest(_message.Message):
+    __slots__ = ("header",)
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ...) -> None: ...
+
+class ListSessionsReply(_message.Message):
+    __slots__ = ("header", "server_id", "sessions")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SERVER_ID_FIELD_NUMBER: _ClassVar[int]
+    SESSIONS_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    server_id: str
+    sessions: _containers.RepeatedCompositeFieldContainer[SessionStatus]
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., server_id: _Optional[str] = ..., sessions: _Optional[_Iterable[_Union[SessionStatus, _Mapping]]] = ...) -> None: ...
+
+class SessionRequest(_message.Message):
+    __slots__ = ("header",)
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ...) -> None: ...
+
+class SetTaskRequest(_message.Message):
+    __slots__ = ("header", "task")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    TASK_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    task: Task
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., task: _Optional[_Union[Task, _Mapping]] = ...) -> None: ...
