@@ -59,6 +59,13 @@ def _overlay() -> pb.OverlayInfo:
                           overlap_rgb=0x00FF00, observed_px=100, model_px=90, overlap_px=80)
 
 
+def _mesh() -> pb.ObjectMesh:
+    return pb.ObjectMesh(name="cup",
+                         vertices=pb.PackedArray(shape=[3, 3], dtype="float32", data=bytes(36)),
+                         faces=pb.PackedArray(shape=[1, 3], dtype="uint32", data=bytes(12)),
+                         container=True)
+
+
 SAMPLES = {
     "Header": _header(),
     "PackedArray": pb.PackedArray(shape=[2, 3], dtype="float32", data=bytes(range(24))),
@@ -94,6 +101,8 @@ SAMPLES = {
                                               sessions=[_status()]),
     "SessionRequest": pb.SessionRequest(header=_header(2)),
     "SetTaskRequest": pb.SetTaskRequest(header=_header(4), task=_task()),
+    "ObjectMesh": _mesh(),
+    "SceneMeshes": pb.SceneMeshes(header=_header(5), objects=[_mesh()]),
 }
 
 

@@ -389,3 +389,23 @@ class SetTaskRequest(_message.Message):
     header: Header
     task: Task
     def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., task: _Optional[_Union[Task, _Mapping]] = ...) -> None: ...
+
+class ObjectMesh(_message.Message):
+    __slots__ = ("name", "vertices", "faces", "container")
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    VERTICES_FIELD_NUMBER: _ClassVar[int]
+    FACES_FIELD_NUMBER: _ClassVar[int]
+    CONTAINER_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    vertices: PackedArray
+    faces: PackedArray
+    container: bool
+    def __init__(self, name: _Optional[str] = ..., vertices: _Optional[_Union[PackedArray, _Mapping]] = ..., faces: _Optional[_Union[PackedArray, _Mapping]] = ..., container: _Optional[bool] = ...) -> None: ...
+
+class SceneMeshes(_message.Message):
+    __slots__ = ("header", "objects")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    OBJECTS_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    objects: _containers.RepeatedCompositeFieldContainer[ObjectMesh]
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., objects: _Optional[_Iterable[_Union[ObjectMesh, _Mapping]]] = ...) -> None: ...
