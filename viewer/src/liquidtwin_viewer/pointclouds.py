@@ -60,6 +60,26 @@ def decode_point_cloud(cloud: PointCloud) -> np.ndarray:
     Raises:
         RecordingError: bad stride, field layout or data length.
     """
+    points, _ = read_cloud(cloud)
+    return points
+
+
+def read_cloud(cloud: PointCloud, extra: tuple[str, ...] = ()) -> tuple[np.ndarray, dict]:
+    """Positions and other per-point fields of a ``foxglove.PointCloud``.
+
+    Args:
+        cloud: the message; ``x``, ``y``, ``z`` as in :func:`decode_point_cloud`.
+        extra: names of further numeric fields to read (e.g. ``("speed",)``); one the
+            cloud lacks reads as NaN.
+
+    Returns:
+        points: (N, 3) float32 positions moved by ``cloud.pose``, m; points with a
+            non-finite coordinate are dropped.
+        fields: name -> (N,) float32 values of each ``extra`` field, same rows as points.
+
+    Raises:
+        RecordingError: bad stride, field layout or data length.
+    """
     stride = cloud.point_stride
     if stride <= 0:
         raise RecordingError(f"point_stride must be positive, got {stride}")
@@ -67,10 +87,12 @@ def decode_point_cloud(cloud: PointCloud) -> np.ndarray:
         raise RecordingError(
             f"data holds {len(cloud.data)} bytes, not a multiple of point_stride {stride}"
         )
-    fields = {f.name: f for f in cloud.fields if f.name in ("x", "y", "z")}
-    if len(fields) < 2:
+    wanted = ("x", "y", "z", *extra)
+    fields = {f.name: f for f in cloud.fields if f.name in wanted}
+    if sum(name in fields for name in "xyz") < 2:
         raise RecordingError(
-            f"point cloud needs at least two of the fields x, y, z; has {sorted(fields)}"
+            f"point cloud needs at least two of the fields x, y, z; "
+            f"has {sorted(n for n in fields if n in 'xyz')}"
         )
     names, formats, offsets = [], [], []
     for name, field in fields.items():
@@ -92,8 +114,13 @@ def decode_point_cloud(cloud: PointCloud) -> np.ndarray:
             points[:, axis] = records[name]
     if cloud.HasField("pose"):
         points = points @ _rotation(cloud.pose.orientation).T + _xyz(cloud.pose.position)
-    points = points[np.isfinite(points).all(axis=1)]
-    return points.astype(np.float32)
+    keep = np.isfinite(points).all(axis=1)
+    values = {
+        name: (records[name][keep].astype(np.float32) if name in fields
+               else np.full(int(keep.sum()), np.nan, np.float32))
+        for name in extra
+    }
+    return points[keep].astype(np.float32), values
 
 
 def load_point_clouds(path: str | Path, topic: str = "/particles") -> PointCloudSeries:
