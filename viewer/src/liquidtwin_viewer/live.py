@@ -41,11 +41,12 @@ class LiveViewer:
         point_size: drawn particle size, m.
         max_hz: most view updates per second.
         frustum_scale: drawn camera frustum size, m.
+        run_thread: start the render thread (False: call :meth:`render_once` yourself).
     """
 
     def __init__(self, feed: LiveFeed, *, host: str = "127.0.0.1", port: int = 8080,
                  session: str | None = None, point_size: float = 0.005, max_hz: float = 30.0,
-                 frustum_scale: float = 0.05):
+                 frustum_scale: float = 0.05, run_thread: bool = True):
         if not max_hz > 0:
             raise ValueError(f"max_hz must be positive, got {max_hz}")
         self.feed, self.host = feed, host
@@ -65,7 +66,8 @@ class LiveViewer:
         self._stop = threading.Event()
         self.server.on_client_connect(self._on_connect)
         self._thread = threading.Thread(target=self._loop, name="liquidtwin-render", daemon=True)
-        self._thread.start()
+        if run_thread:
+            self._thread.start()
 
     # ----------------------------------------------------------------------------- public
     @property
@@ -102,7 +104,8 @@ class LiveViewer:
     def stop(self) -> None:
         """Stop rendering and the web server (the feed is the caller's)."""
         self._stop.set()
-        self._thread.join(timeout=2.0)
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
         self.server.stop()
 
     def render_once(self) -> None:
@@ -286,7 +289,8 @@ class LiveViewer:
     # ---------------------------------------------------------------------------- state
     def _status_line(self, snap: SessionSnapshot) -> str:
         parts = [f"**{snap.session}**", "paused" if self._paused else "live",
-                 f"{snap.frames} frames", f"{snap.fps:.1f} fps"]
+                 f"{snap.frames} frames", f"{snap.fps:.1f} fps in",
+                 f"{self.render_hz():.1f} Hz drawn"]
         m = snap.metrics
         if m is not None:
             parts.append(f"lag {m.lag_ms:.0f} ms")
