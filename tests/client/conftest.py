@@ -65,6 +65,7 @@ class FakeServer:
     endpoint: where it listens. inputs: [(stream, Header, payload bytes, monotonic s)].
     requests: [(method, session or None, request message)]. sessions: {id: SessionStatus}.
     answered: number of frames answered. skip_stamps: frame stamps left unanswered.
+    answer_delay_s: frames are answered that late, from a timer thread.
     create_delay_s: how long create_session takes (replied from another thread).
     """
 
@@ -78,6 +79,8 @@ class FakeServer:
         self.answered = 0
         self.skip_stamps: set[int] = set()
         self.create_delay_s = 0.0
+        self.answer_delay_s = 0.0
+        self.answer_times: dict[int, float] = {}  # frame stamp -> monotonic s answered
         self.rejected = 0
         self._mask_pending: dict[str, bool] = {}
         self._out_seq = 0
@@ -160,9 +163,17 @@ class FakeServer:
             if parsed.name != "poses" or header.stamp_ns in self.skip_stamps:
                 return
             had_mask = self._mask_pending.pop(parsed.session, False)
-            self._answer(parsed.session, header, FrameTransforms.FromString(payload), had_mask)
+        args = (parsed.session, header, FrameTransforms.FromString(payload), had_mask)
+        if self.answer_delay_s:
+            threading.Timer(self.answer_delay_s, self._answer, args).start()
+        else:
+            self._answer(*args)
 
     def _answer(self, sid, header, tfs, had_mask):
+        with self._lock:
+            self._answer_locked(sid, header, tfs, had_mask)
+
+    def _answer_locked(self, sid, header, tfs, had_mask):
         ty = tfs.transforms[0].translation.y
         vols = Volumes(header=make_header(sid, header.seq, header.stamp_ns))
         vols.containers.add(name="source", ml=float(header.seq))
@@ -177,6 +188,7 @@ class FakeServer:
             self.zenoh.put(self.keys.stream_out(sid, stream), msg.SerializeToString(),
                            attachment=att)
         self.answered += 1
+        self.answer_times[header.stamp_ns] = time.monotonic()
 
     def publish_raw(self, sid, stream, payload, attachment):
         """Publish an arbitrary output sample (for malformed-output tests)."""
