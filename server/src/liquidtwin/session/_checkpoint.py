@@ -1,0 +1,63 @@
+"""A session engine's checkpoint: what changes, as tensors, numbers and strings only."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import torch
+
+from ..control import PourPID
+from ..sim import FluidState
+from ._task import task_from_str, task_to_str
+from .errors import BAD_REQUEST, EngineError
+
+VERSION = 1
+
+
+def spec_digest(spec) -> str:
+    """SHA-256 of the spec's deterministic serialisation (a checkpoint names its spec)."""
+    return hashlib.sha256(spec.SerializeToString(deterministic=True)).hexdigest()
+
+
+def engine_state(engine) -> dict:
+    """Loadable with ``torch.load(..., weights_only=True)``."""
+    s = engine._state
+    out = {
+        "version": VERSION, "spec_sha256": spec_digest(engine.spec),
+        "x": s.x.detach().cpu().clone(), "v": s.v.detach().cpu().clone(), "ids": s.ids.cpu().clone(),
+        "poses": s.poses.detach().cpu().clone(), "t": float(s.t),
+        "sim_t": float(engine._sim_t), "has_frame": engine._frame_t is not None,
+        "frame_t": float(engine._frame_t or 0.0), "frame_poses": torch.as_tensor(engine._frame_poses).clone(),
+        "frames": int(engine._frames), "cameras": engine._cameras.state_dict(),
+        "tracker": engine._tracker.state_dict(),
+        "task": task_to_str(engine._task) if engine._task is not None else "",
+        "task_base": float(engine._task_base), "control_frame": int(engine._control_frame),
+        "pid": engine._pid.state_dict() if engine._pid is not None else {},
+    }
+    return out
+
+
+def load_engine_state(engine, state: dict) -> None:
+    """Restore :func:`engine_state` into ``engine`` (built from the same spec)."""
+    if not isinstance(state, dict) or state.get("version") != VERSION:
+        raise EngineError(BAD_REQUEST, f"not a session engine checkpoint of version {VERSION}")
+    if state["spec_sha256"] != spec_digest(engine.spec):
+        raise EngineError(BAD_REQUEST, "the checkpoint was written by a session with another spec")
+    n = engine._scene.state.x.shape[0]
+    if tuple(state["x"].shape) != (n, 3):
+        raise EngineError(BAD_REQUEST, f"checkpoint has {tuple(state['x'].shape)} particles, the scene {n}")
+    dev = engine._scene.state.x.device
+    engine._state = FluidState(state["x"].to(dev), state["v"].to(dev), state["ids"].to(dev),
+                               state["poses"].to(dev), float(state["t"]))
+    engine._sim_t = float(state["sim_t"])
+    engine._frame_t = float(state["frame_t"]) if state["has_frame"] else None
+    engine._frame_poses = state["frame_poses"].numpy().astype(np.float64)
+    engine._frames = int(state["frames"])
+    engine._volumes = None
+    engine._cameras.load_state_dict(state["cameras"])
+    engine._tracker.load_state_dict(state["tracker"])
+    engine._task = task_from_str(state["task"]) if state["task"] else None
+    engine._task_base = float(state["task_base"])
+    engine._control_frame = int(state["control_frame"])
+    engine._pid = PourPID.from_state_dict(state["pid"]) if state["pid"] else None

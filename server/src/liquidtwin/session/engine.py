@@ -1,0 +1,282 @@
+"""SessionEngine: one session's simulation, tracker and controller, without any networking.
+
+The service owns one engine per session and calls it from one worker thread: ``advance`` on
+every frame (object poses at a frame time), ``correct`` when the frame has a liquid mask,
+then reads ``positions``/``speeds``/``volumes``/``control``. Everything runs under
+``torch.no_grad()`` on the fast no-gradient paths of the simulator. ``state_dict`` holds all
+that changes, so an engine built from the same spec and loaded with it continues bit for
+bit (docs/service.md, "Nothing lost").
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from liquidtwin_proto import liquidtwin_pb2 as pb
+
+from ..camera import model_mask, visible
+from ..camera.render import coverage
+from ..recordings._interp import interpolate_poses
+from ..scenes.liquid_level import held
+from ..sim import FluidState, collide_move, step
+from ..tracking import Observation, OpenLoop, WarpField
+from ._build import build_scene
+from ._checkpoint import engine_state, load_engine_state
+from ._cameras import Cameras, check_pose, tilt_from_upright
+from ._task import control_message, make_controller
+from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
+from .overlay import make_overlay
+
+#: Model-mask disc radius (SPEC §2) and nearest depth drawn, px / m.
+RADIUS_PX = 5.0
+NEAR_M = 0.02
+STATE_VERSION = 1
+
+
+@dataclass
+class FrameResult:
+    """steps: simulation steps taken; step_ms: their wall time; sim_lag_s: how far the sim
+    clock jumped because of ``max_steps`` (0 normally); sim_time_s: session time after it, s."""
+
+    steps: int
+    step_ms: float
+    sim_lag_s: float
+    sim_time_s: float
+
+
+@dataclass
+class CorrectionResult:
+    """iou: model vs observed mask before the correction; correction_ms: wall time of the whole
+    call; overlay: (H, W, 3) uint8 RGB, Fig. 8.10 colours, before the correction (what the
+    camera saw vs what the model predicted); pixel totals (overlap counted in both)."""
+
+    iou: float
+    correction_ms: float
+    overlay: np.ndarray
+    observed_px: int
+    model_px: int
+    overlap_px: int
+
+
+def _tracker(spec: pb.SessionSpec):
+    mode = spec.tracking
+    gain = float(spec.correction_gain)
+    if not (math.isfinite(gain) and gain >= 0):
+        raise EngineError(BAD_REQUEST, f"correction_gain must be >= 0 (0 = default), got {gain}")
+    if mode == pb.OPEN_LOOP:
+        return OpenLoop()
+    if mode in (pb.TRACKING_MODE_UNSPECIFIED, pb.WARP_FIELD):
+        return WarpField(gain) if gain > 0 else WarpField()
+    if mode in (pb.MAP_FILTER, pb.SPNETS_PERCEPTION):
+        raise EngineError(INFEASIBLE, f"tracking mode {pb.TrackingMode.Name(mode)} is not available in this "
+                                      f"version; use WARP_FIELD or OPEN_LOOP")
+    raise EngineError(BAD_REQUEST, f"unknown tracking mode {mode}")
+
+
+class SessionEngine:
+    """A session's liquid twin. Build with :meth:`create`; see the module doc."""
+
+    @classmethod
+    def create(cls, spec: pb.SessionSpec, *, device: str = "cpu", progress: bool = False,
+               base_dir: str = ".") -> "SessionEngine":
+        """Build objects, model and settled fill of ``spec.scene``, cameras from ``spec.cameras``
+        and the tracker of ``spec.tracking``. Raises EngineError (BAD_REQUEST, UNKNOWN_NAME,
+        INFEASIBLE: e.g. a tracking mode not implemented, no CUDA, more liquid than fits)."""
+        device = device or spec.device or "cpu"
+        if not (device == "cpu" or device.startswith("cuda")):
+            raise EngineError(BAD_REQUEST, f"device must be 'cpu' or 'cuda[:N]', got {device!r}")
+        if device.startswith("cuda") and not torch.cuda.is_available():
+            raise EngineError(INFEASIBLE, f"device {device!r} asked for, but this server has no CUDA device")
+        tracker = _tracker(spec)
+        cameras = Cameras(spec)
+        scene = build_scene(spec, device=device, progress=progress, base_dir=base_dir)
+        return cls(spec, scene, cameras, tracker, device)
+
+    def __init__(self, spec, scene, cameras, tracker, device):
+        self.spec, self.device, self._scene = spec, device, scene
+        self._cameras, self._tracker = cameras, tracker
+        self.object_names = scene.names
+        self.container_names = scene.containers
+        self.dt = float(scene.model.dt)
+        self._capacity = {n: scene.objects[scene.names.index(n)].capacity_ml for n in scene.containers}
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self._state = self._scene.state
+        self._sim_t = 0.0
+        self._frame_t: float | None = None
+        self._frame_poses = self._scene.initial_poses.copy()
+        self._frames = 0
+        self._volumes: tuple | None = None
+        self._task: pb.Task | None = None
+        self._pid = None
+        self._task_base = 0.0
+        self._control_frame = -1
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def camera_names(self) -> set:
+        return set(self._cameras.known)
+
+    @property
+    def n_particles(self) -> int:
+        return int(self._state.x.shape[0])
+
+    @property
+    def sim_time_s(self) -> float:
+        return self._sim_t
+
+    def set_camera(self, name: str, *, K=None, D=None, width=None, height=None, pose=None) -> None:
+        """Intrinsics K (3, 3), D (5,) plumb bob, size px, and/or pose (7,) camera → world
+        (OpenCV frame); a camera is usable once it has both."""
+        self._cameras.set(name, K=K, D=D, width=width, height=height, pose=pose)
+
+    def camera_size(self, name: str) -> tuple[int, int] | None:
+        """(height, width) px of camera ``name`` if known."""
+        return self._cameras.size(name)
+
+    # ------------------------------------------------------------------ frames
+    def advance(self, t_s: float, poses: dict, *, max_steps: int = 8) -> FrameResult:
+        """Step from the previous frame's time to ``t_s`` (session s, first frame 0) with the
+        named objects' (7,) poses interpolated (lerp/slerp) from the previous frame's; others
+        keep theirs. Keeps the sub-step remainder; beyond ``max_steps`` the clock jumps."""
+        t_s = float(t_s)
+        if not math.isfinite(t_s) or t_s < 0:
+            raise EngineError(BAD_REQUEST, f"frame time must be a finite number of s >= 0, got {t_s}")
+        if self._frame_t is not None and t_s < self._frame_t:
+            raise EngineError(BAD_REQUEST, f"frame time {t_s:.6f} s is before the previous frame's {self._frame_t:.6f} s")
+        if isinstance(max_steps, bool) or int(max_steps) != max_steps or max_steps < 0:
+            raise EngineError(BAD_REQUEST, f"max_steps must be a whole number >= 0, got {max_steps!r}")
+        new = self._frame_poses.copy()
+        for name, p in poses.items():
+            if name not in self.object_names:
+                raise EngineError(UNKNOWN_NAME, f"no object {name!r} in the scene ({', '.join(self.object_names)})")
+            new[self.object_names.index(name)] = check_pose(p, f"object {name!r}")
+        t_prev = t_s if self._frame_t is None else self._frame_t
+        n = max(0, int(math.floor((t_s - self._sim_t) / self.dt + 1e-6)))
+        steps = min(n, int(max_steps))
+        taus = self._sim_t + np.arange(1, steps + 1) * (n * self.dt / max(steps, 1)) - t_prev
+        span = t_s - t_prev
+        start = time.perf_counter()
+        state = self._state
+        if steps:
+            ns = np.round(np.clip(taus / span if span > 0 else np.ones(steps), 0, 1) * 1e9).astype(np.int64)
+            path = np.stack([interpolate_poses(np.array([0, 10**9]), np.stack([self._frame_poses[j], new[j]]), ns)
+                             for j in range(len(new))], 1)          # (steps, M, 7)
+            path = torch.as_tensor(path, device=state.x.device)
+            with torch.no_grad():
+                for k in range(steps):
+                    state = step(self._scene.model, state, path[k])
+        ms = 1e3 * (time.perf_counter() - start)
+        self._state = state
+        self._sim_t += n * self.dt
+        self._frame_t, self._frame_poses = t_s, new
+        self._frames += 1
+        self._volumes = None
+        return FrameResult(steps, ms, (n - steps) * self.dt, self._sim_t)
+
+    def correct(self, camera: str, mask: np.ndarray) -> CorrectionResult:
+        """Compare the model with an observed liquid ``mask`` (H, W) bool of ``camera`` and apply
+        the session's tracker (OPEN_LOOP only measures). IOU and overlay are from before."""
+        start = time.perf_counter()
+        cam = self._cameras.camera(camera)
+        mask = np.asarray(mask)
+        if mask.shape != (cam.height, cam.width):
+            raise EngineError(BAD_REQUEST, f"mask of camera {camera!r} is {mask.shape}, its calibration says "
+                                           f"{(cam.height, cam.width)} (H, W)")
+        mask = mask if mask.dtype == bool else mask != 0
+        s, model = self._state, self._scene.model
+        occ = list(self._scene.occluders)
+        with torch.no_grad():
+            poses = s.poses
+            seen = visible(cam, s.x, [model.objects[k] for k in occ], poses[occ], margin_px=RADIUS_PX, near=NEAR_M)
+            uv, depth = cam.project(s.x)
+            mm = model_mask(uv, seen, cam.height, cam.width, RADIUS_PX)
+            ov = make_overlay(mask, mm.cpu().numpy())
+            if not isinstance(self._tracker, OpenLoop):
+                obs_mask = torch.as_tensor(mask, device=s.x.device)
+                cov = coverage(uv, seen, cam.height, cam.width, RADIUS_PX).to(s.x.device)
+                obs = Observation(cam, obs_mask, s.x, s.v, uv, depth, seen, cov, RADIUS_PX, model, poses)
+                corr = self._tracker.correct(obs)
+                if corr is not None:
+                    self._apply(corr, seen)
+        return CorrectionResult(ov.iou, 1e3 * (time.perf_counter() - start), ov.image, ov.observed_px,
+                                ov.model_px, ov.overlap_px)
+
+    def _apply(self, corr, seen: torch.Tensor) -> None:
+        s = self._state
+        idx = seen.nonzero().squeeze(1)
+        x, v = s.x.clone(), s.v.clone()
+        x[idx] = collide_move(self._scene.model, s.x[idx], corr.dx[idx].to(s.x), s.poses, s.poses)
+        if corr.dv is not None:
+            v[idx] = v[idx] + corr.dv[idx].to(v)
+        self._state = FluidState(x, v, s.ids, s.poses, s.t)
+        self._volumes = None
+
+    # ------------------------------------------------------------------ outputs
+    def positions(self) -> np.ndarray:
+        """(N, 3) float32 particle positions, m, world, ordered by particle id."""
+        return self._state.by_id()[0].detach().cpu().numpy().astype(np.float32)
+
+    def speeds(self) -> np.ndarray:
+        """(N,) float32 particle speeds, m/s, ordered by particle id."""
+        return self._state.by_id()[1].detach().norm(dim=1).cpu().numpy().astype(np.float32)
+
+    def volumes(self) -> dict:
+        """{container: ml}: particles the container holds × the fills' settled ml per particle."""
+        if self._volumes is None or self._volumes[0] != self._frames:
+            out = {}
+            for name in self.container_names:
+                k = self.object_names.index(name)
+                inside, _ = held(self._scene.model, self._state, k, self._scene.objects[k])
+                out[name] = float(inside.sum()) * self._scene.ml_per_particle
+            self._volumes = (self._frames, out)
+        return dict(self._volumes[1])
+
+    def meshes(self) -> dict:
+        """{name: ((V, 3) float32 vertices m object frame, (F, 3) uint32 faces, is_container)}."""
+        return {n: (np.asarray(o.mesh.vertices, np.float32), np.asarray(o.mesh.faces, np.uint32),
+                    n in self.container_names) for n, o in zip(self.object_names, self._scene.objects)}
+
+    # ------------------------------------------------------------------ task
+    def set_task(self, task: pb.Task) -> None:
+        """Set (or, with an empty task, cancel) the pour task; EngineError if impossible."""
+        if task.WhichOneof("kind") is None:
+            self._task, self._pid = None, None
+            return
+        vols = self.volumes()
+        k = self.object_names.index(task.pour.source) if task.pour.source in self.object_names else None
+        tilt = tilt_from_upright(self._frame_poses[k]) if k is not None else 0.0
+        pid = make_controller(task, self.object_names, self.container_names, vols, self._capacity, tilt)
+        self._task, self._pid = pb.Task(), pid
+        self._task.CopyFrom(task)
+        self._task_base = vols[task.pour.target]
+        self._control_frame = -1
+
+    def control(self) -> pb.Control | None:
+        """The controller's command after the latest frame; None without a task."""
+        if self._task is None:
+            return None
+        poured = self.volumes()[self._task.pour.target] - self._task_base
+        if self._control_frame != self._frames:
+            self._pid.update(self._sim_t, poured)
+            self._control_frame = self._frames
+        return control_message(self._task, self._pid, poured)
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self) -> None:
+        """Back to the settled initial fill at time 0; cameras kept, task cleared."""
+        self._reset_state()
+        self._tracker.load_state_dict({})
+
+    def state_dict(self) -> dict:
+        """Everything that changes (tensors, numbers, strings): torch.load(weights_only=True)."""
+        return engine_state(self)
+
+    def load_state_dict(self, state: dict) -> None:
+        """Continue from :meth:`state_dict` of an engine created from the same spec."""
+        load_engine_state(self, state)

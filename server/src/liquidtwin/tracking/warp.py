@@ -1,0 +1,191 @@
+"""Warp-field tracking (thesis §7.2.3, SPEC §4.3): observed liquid pixels pull particles.
+
+Force on particle i (its projection x̂_i, px)::
+
+    f_i = λ Σ_{j ∈ liquid(I)} u_ij W(|x̂_i − j|) / (Φ(j) + 1)
+
+u_ij the unit vector from x̂_i to pixel j, W(d) = exp(−d²/ℓ²) for d ≤ r_c (a squared
+exponential with length scale ℓ = 33 px, cut off at r_c = 100 px; the thesis's "length scale
+1/33²" is the factor on d²), Φ the coverage of pixel j by the model's visible particle discs.
+Dividing by Φ + 1 makes well-covered pixels pull less, so particles spread over the whole
+observed contour instead of clumping on part of it.
+
+How it is computed (never a particles × pixels loop): the sum is a cross-correlation of the
+weight image g = mask / (Φ + 1) with the vector kernel K(d) = d/|d| W(|d|), done once per
+frame with FFTs (:func:`warp_image`), then read at each particle's projection by bilinear
+interpolation. ℓ and r_c are given at 640×480 and scale with √(H·W / 640·480).
+
+Units and gain: the image sum is divided by the kernel's mass Σ_d W(|d|), so it is a
+dimensionless pull (≈ 0.3 at the edge of a large uncovered liquid region, 0 far from
+liquid); the gain λ (``gain``) turns it into a displacement in px at 640×480 (scaled like ℓ).
+The 2-D displacement is lifted to 3-D parallel to the image plane (the camera's x and y
+axes, × depth / focal length), smoothed over the visible particles with the SPH sum
+f̄_i = Σ_j f_j W_ρ(|x_i − x_j|, h) / ρ_j (unit masses, ρ_j = Σ_k W_ρ over visible k, both
+sums including the particle itself), and applied to the visible particles as a position
+correction (anti-clipped by the engine) and, with ``velocity_share`` > 0, a velocity change.
+
+What the thesis does and does not do, and so what this does: only liquid pixels act. Pixels
+seen as dry do not repel, and particles the model shows where the camera sees no liquid
+(model-only regions) get no force unless observed liquid lies within r_c of them, which then
+pulls them over; occluded particles are neither pulled nor smoothed with (SPEC §2).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ..camera import Camera
+from ..sim import convsp, find_neighbors
+from .base import Correction, Observation, Tracker
+
+#: Squared-exponential length scale and cut-off at the reference resolution, px (thesis §7.2.2).
+LENGTH_PX = 33.0
+CUTOFF_PX = 100.0
+REFERENCE_SIZE = (480, 640)     # (height, width), px
+#: Default gain, px of pull at 640×480 per unit of the normalised field (measured on the
+#: golden pour, see tests/server/test_session_engine.py).
+DEFAULT_GAIN = 300.0
+
+
+def image_scale(height: int, width: int) -> float:
+    """How ℓ and r_c scale with the image size: √(H·W / 480·640)."""
+    return math.sqrt(height * width / (REFERENCE_SIZE[0] * REFERENCE_SIZE[1]))
+
+
+def warp_kernel(length_px: float, cutoff_px: float, dtype=torch.float64, device=None) -> torch.Tensor:
+    """(2, 2R+1, 2R+1) vector kernel, R = ⌊cutoff⌋: entry [:, R+dy, R+dx] = (dx, dy)/|d| ·
+    exp(−|d|²/ℓ²) for 0 < |d| ≤ cutoff, else 0 (offsets d = pixel − particle, px)."""
+    if not (length_px > 0 and cutoff_px >= 1):
+        raise ValueError(f"need length_px > 0 and cutoff_px >= 1, got {length_px}, {cutoff_px}")
+    R = int(math.floor(cutoff_px))
+    d = torch.arange(-R, R + 1, dtype=dtype, device=device)
+    dy, dx = torch.meshgrid(d, d, indexing="ij")
+    r = torch.sqrt(dx * dx + dy * dy)
+    w = torch.where((r > 0) & (r <= cutoff_px), torch.exp(-(r * r) / (length_px * length_px)), 0.0)
+    rs = r.clamp(min=1e-12)
+    return torch.stack([dx / rs * w, dy / rs * w])
+
+
+def kernel_mass(length_px: float, cutoff_px: float) -> float:
+    """Σ_d W(|d|) over the kernel's integer offsets (0 < |d| ≤ cutoff), the normaliser."""
+    R = int(math.floor(cutoff_px))
+    d = torch.arange(-R, R + 1, dtype=torch.float64)
+    r2 = d[:, None] ** 2 + d[None, :] ** 2
+    keep = (r2 > 0) & (r2 <= cutoff_px * cutoff_px)
+    return float(torch.exp(-r2 / length_px**2)[keep].sum())
+
+
+def warp_image(weights: torch.Tensor, length_px: float, cutoff_px: float) -> torch.Tensor:
+    """F(p) = Σ_j weights(j) · u(p→j) · W(|j − p|) at every pixel centre p.
+
+    Args:
+      weights: (H, W) float per-pixel weight (mask / (Φ + 1)).
+      length_px, cutoff_px: kernel length scale and cut-off, px.
+    Returns:
+      (2, H, W) (u, v) components, weights' dtype and device. Computed as a zero-padded FFT
+      cross-correlation, O(HW log HW) whatever the number of liquid pixels.
+    """
+    if weights.dim() != 2:
+        raise ValueError(f"weights must be an (H, W) image, got shape {tuple(weights.shape)}")
+    H, W = weights.shape
+    k = warp_kernel(length_px, cutoff_px, weights.dtype, weights.device)
+    R = (k.shape[-1] - 1) // 2
+    Hp, Wp = H + R, W + R           # enough zero padding that no offset wraps onto the image
+    kk = torch.zeros(2, Hp, Wp, dtype=weights.dtype, device=weights.device)
+    idx_y = torch.arange(-R, R + 1, device=weights.device) % Hp
+    idx_x = torch.arange(-R, R + 1, device=weights.device) % Wp
+    kk[:, idx_y[:, None], idx_x[None, :]] = k   # kernel at offset d stored at index d mod size
+    # Correlation Σ_d K(d) g(p + d): spectrum conj(K̂) · ĝ (K real).
+    g = torch.fft.rfft2(weights, s=(Hp, Wp))
+    out = torch.fft.irfft2(torch.conj(torch.fft.rfft2(kk)) * g, s=(Hp, Wp))
+    return out[:, :H, :W]
+
+
+def sample_bilinear(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """Image (C, H, W) read at (K, 2) pixel positions (u = column, v = row, pixel centres at
+    integers), bilinear, positions clamped to the image → (K, C)."""
+    C, H, W = image.shape
+    u = uv[:, 0].to(image.dtype).clamp(0, W - 1)
+    v = uv[:, 1].to(image.dtype).clamp(0, H - 1)
+    u0, v0 = u.floor().long().clamp(max=W - 2 if W > 1 else 0), v.floor().long().clamp(max=H - 2 if H > 1 else 0)
+    u1, v1 = (u0 + 1).clamp(max=W - 1), (v0 + 1).clamp(max=H - 1)
+    a, b = (u - u0)[:, None], (v - v0)[:, None]
+    img = image.permute(1, 2, 0)
+    return ((1 - a) * (1 - b) * img[v0, u0] + a * (1 - b) * img[v0, u1]
+            + (1 - a) * b * img[v1, u0] + a * b * img[v1, u1])
+
+
+def lift(camera: Camera, duv: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+    """Pixel displacements (K, 2) px of points at depth (K,) m → world displacements (K, 3) m
+    in the plane parallel to the image: du·z/fx along the camera x axis, dv·z/fy along y."""
+    R = camera.rotation.to(device=duv.device, dtype=duv.dtype)
+    z = depth.to(duv.dtype)
+    return (duv[:, 0] * z / camera.fx)[:, None] * R[:, 0] + (duv[:, 1] * z / camera.fy)[:, None] * R[:, 1]
+
+
+def sph_smooth(x: torch.Tensor, f: torch.Tensor, h: float) -> torch.Tensor:
+    """SPH sum f̄_i = Σ_j f_j W_ρ(|x_i − x_j|, h) / ρ_j with unit masses and
+    ρ_j = Σ_k W_ρ(|x_j − x_k|, h), both including the particle itself.
+    x: (K, 3) m, f: (K, 3) → (K, 3)."""
+    if len(x) == 0:
+        return f
+    nb = find_neighbors(x, None, h)
+    rho = convsp(x, torch.ones_like(x[:, 0]), "rho", h, neighbors=nb, include_self=True)
+    return convsp(x, f / rho[:, None], "rho", h, neighbors=nb, include_self=True)
+
+
+class WarpField(Tracker):
+    """Warp-field tracker (module doc).
+
+    Args:
+      gain: λ, px of pull at 640×480 per unit of normalised field (default :data:`DEFAULT_GAIN`).
+      length_px, cutoff_px: kernel at 640×480, px (scaled with the image).
+      velocity_share: the velocity change is this share of the position correction spread
+        over ``velocity_time_s`` (0: position correction only).
+      max_move: cap on a particle's correction per observation, in kernel radii h.
+    """
+
+    name = "warp_field"
+
+    def __init__(self, gain: float = DEFAULT_GAIN, *, length_px: float = LENGTH_PX, cutoff_px: float = CUTOFF_PX,
+                 velocity_share: float = 0.0, velocity_time_s: float = 1.0 / 30.0, max_move: float = 0.5):
+        for k, v in (("gain", gain), ("length_px", length_px), ("cutoff_px", cutoff_px),
+                     ("velocity_time_s", velocity_time_s), ("max_move", max_move)):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"warp field {k} must be a positive number, got {v}")
+        if not (math.isfinite(velocity_share) and velocity_share >= 0):
+            raise ValueError(f"velocity_share must be >= 0, got {velocity_share}")
+        self.gain, self.length_px, self.cutoff_px = float(gain), float(length_px), float(cutoff_px)
+        self.velocity_share, self.velocity_time_s = float(velocity_share), float(velocity_time_s)
+        self.max_move = float(max_move)
+
+    def field(self, mask: torch.Tensor, coverage: torch.Tensor) -> torch.Tensor:
+        """(2, H, W) normalised pull field (px-free) of an observation: mask (H, W) bool,
+        coverage (H, W) int."""
+        H, W = mask.shape
+        s = image_scale(H, W)
+        ell, cut = self.length_px * s, max(self.cutoff_px * s, 1.0)
+        g = mask.to(torch.float32) / (coverage.to(torch.float32) + 1.0)
+        return warp_image(g, ell, cut) / kernel_mass(ell, cut)
+
+    def correct(self, obs: Observation) -> Correction | None:
+        vis = obs.visible.nonzero().squeeze(1)
+        if len(vis) == 0 or not bool(obs.mask.any()):
+            return None
+        H, W = obs.mask.shape
+        F = self.field(obs.mask, obs.coverage)
+        duv = sample_bilinear(F, obs.uv[vis].to(F.dtype)) * (self.gain * image_scale(H, W))
+        x = obs.x[vis]
+        d3 = lift(obs.camera, duv.to(x.dtype), obs.depth[vis])
+        d3 = sph_smooth(x, d3, obs.model.h)
+        cap = self.max_move * obs.model.h
+        norm = d3.norm(dim=1, keepdim=True)
+        d3 = d3 * torch.clamp(cap / norm.clamp(min=1e-12), max=1.0)
+        dx = torch.zeros_like(obs.x)
+        dx[vis] = d3
+        dv = None
+        if self.velocity_share > 0:
+            dv = dx * (self.velocity_share / self.velocity_time_s)
+        return Correction(dx, dv)
