@@ -3,7 +3,8 @@
 #   make venv    create/update .venv (torch first and alone, then requirements.lock, then
 #                the four packages, editable); re-runs only when an install input changes
 #   make test    venv + the whole test suite
-#   make demo    venv + `liquidtwin demo`
+#   make demo    venv + `liquidtwin demo`: server + viewer + a client streaming a bundled pour;
+#                the viewer stays up until Ctrl-C (make demo ARGS=--no-wait to exit after)
 #   make bench   venv + `liquidtwin bench` (extra flags: make bench ARGS="...")
 #   make proto   regenerate proto/src/liquidtwin_proto/*_pb2.py[i] from the .proto files
 #   make clean   remove build outputs and the install stamp (keeps .venv; rm -rf .venv for a full reset)
@@ -50,7 +51,7 @@ test: venv apt
 	$(PY) -m pytest -q tests
 
 demo: venv
-	$(VENV)/bin/liquidtwin demo
+	$(VENV)/bin/liquidtwin demo $(ARGS)
 
 bench: venv
 	$(VENV)/bin/liquidtwin bench $(ARGS)

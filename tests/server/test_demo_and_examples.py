@@ -59,7 +59,7 @@ def test_help_of_every_command():
     top = run("-m", "liquidtwin.cli", "--help").stdout
     assert "demo" in top and "bench" in top
     demo = run("-m", "liquidtwin.cli", "demo", "--help").stdout
-    for flag in ("--out", "--seconds", "--particles-scale", "--backend"):
+    for flag in ("--offline", "--recording", "--no-wait", "--out", "--seconds", "--particles-scale", "--backend"):
         assert flag in demo
     script = Path(sys.executable).with_name("liquidtwin")
     if script.exists():  # the console script of the editable install
@@ -70,7 +70,7 @@ def test_help_of_every_command():
 
 def test_demo_records_a_readable_mcap(tmp_path, scene):
     out = tmp_path / "rec" / "demo.mcap"
-    proc = run("-m", "liquidtwin.cli", "demo", "--seconds", "0.3", "--out", out)
+    proc = run("-m", "liquidtwin.cli", "demo", "--offline", "--seconds", "0.3", "--out", out)
     text = proc.stdout
     n = scene.state.x.shape[0]
     assert re.search(rf"particles\s+{n}\b", text), text

@@ -36,24 +36,14 @@ class Command:
 
 # ------------------------------------------------------------------ demo
 
-def _configure_demo(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, default=Path("out/demo.mcap"), metavar="PATH",
-                   help="MCAP recording to write (default: %(default)s)")
-    p.add_argument("--seconds", type=float, default=None, metavar="S",
-                   help="simulated time in s (default: the whole pour, about 5.2 s)")
-    p.add_argument("--particles-scale", type=float, default=1.0, metavar="F",
-                   help="multiply the particle count by F at the same liquid volume (default: 1, "
-                        "about 1050 particles)")
-    p.add_argument("--backend", choices=("auto", "torch", "fused"), default="auto",
-                   help="pair-sum back end: fused C++ kernels or the ConvSP reference "
-                        "(default: auto)")
-    p.add_argument("--every", type=int, default=4, metavar="K",
-                   help="record every K-th step (default: %(default)s, i.e. 30 frames per "
-                        "simulated s)")
-    p.add_argument("--threads", type=int, default=1, metavar="N",
-                   help="torch CPU threads (default: 1; the default scene is small and extra "
-                        "threads only pay at a larger --particles-scale)")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+def _demo_configure(p: argparse.ArgumentParser) -> None:
+    from .demo import configure
+    configure(p)
+
+
+def _demo_run(args: argparse.Namespace) -> int:
+    from .demo import run
+    return run(args)
 
 
 def run_demo(args: argparse.Namespace) -> int:
@@ -181,8 +171,8 @@ def run_bench(argv: list[str]) -> int:
 
 #: Subcommands of ``liquidtwin``. Add new ones here.
 COMMANDS: dict[str, Command] = {
-    "demo": Command("simulate a cup pouring into a bowl, record it to MCAP, print a summary",
-                    run_demo, _configure_demo),
+    "demo": Command("the product demo: server + viewer + a robot client streaming a bundled pour "
+                    "(--offline: simulate a pour to MCAP without the service)", _demo_run, _demo_configure),
     "generate": Command("write a synthetic recording (MCAP) of a thesis scene, optionally with hidden "
                         "effects; the truth goes to a sidecar", run_generate, _configure_generate),
     "bench": Command("speed and memory benchmarks of the SPNets step (JSON records)", run_bench,
