@@ -186,7 +186,7 @@ class FakeServer:
             att = encode_attachment(make_header(sid, self._out_seq, header.stamp_ns))
             self._out_seq += 1
             self.zenoh.put(self.keys.stream_out(sid, stream), msg.SerializeToString(),
-                           attachment=att)
+                           attachment=att, congestion_control=zenoh.CongestionControl.BLOCK)
         self.answered += 1
         self.answer_times[header.stamp_ns] = time.monotonic()
 

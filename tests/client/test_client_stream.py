@@ -82,11 +82,14 @@ def test_realtime_paces_by_the_recorded_stamps(fake_server, tmp_path):
     code, _, s = _stream(fake_server, tmp_path, "--rate", "realtime")
     assert code == 0 and s["frames_answered"] == 84
     got = {h.stamp_ns: t for st, h, _, t in fake_server.inputs if st == "poses"}
-    wall = np.array([got[int(t)] for t in STAMPS]) - got[int(STAMPS[0])]
+    wall = np.array([got[int(t)] for t in STAMPS])
     rec = (STAMPS - STAMPS[0]) * 1e-9
-    # never early; late by at most a scheduling hiccup on a busy 2-core machine
-    assert np.all(wall >= rec - 0.005), (wall - rec).min()
-    assert np.median(wall - rec) < 0.05 and s["wall_s"] >= rec[-1]
+    # arrival times follow the recorded stamps up to a constant offset, within scheduling
+    # hiccups on a busy 2-core machine (at --rate max the whole run takes < 0.2 s)
+    lag = wall - rec
+    lag -= np.median(lag)
+    assert np.percentile(np.abs(lag), 90) < 0.02 and np.abs(lag).max() < 0.15, lag
+    assert wall[-1] - wall[0] > rec[-1] - 0.05 and s["wall_s"] >= rec[-1]
 
 
 def test_failures_exit_1_with_a_message(fake_server, tmp_path, capsys):

@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+import zenoh
 from liquidtwin_proto import (IN_STREAMS, OUT_STREAMS, SceneMeshes, SessionRequest, SessionStatus,
                               SetTaskRequest, Task, decode_attachment, encode_attachment,
                               make_header, now_ns, unpack_array)
@@ -59,8 +60,12 @@ class SessionHandle:
         self._lock = threading.Lock()
         self._seq = dict.fromkeys(IN_STREAMS, 0)
         keys = client.keys
-        self._publishers = {s: client.zenoh.declare_publisher(keys.stream_in(session_id, s))
-                            for s in IN_STREAMS}
+        # BLOCK: a congested link delays an input rather than losing it silently (Zenoh's
+        # default drops); staleness is the server's business (dropped_stale).
+        self._publishers = {
+            s: client.zenoh.declare_publisher(keys.stream_in(session_id, s),
+                                              congestion_control=zenoh.CongestionControl.BLOCK)
+            for s in IN_STREAMS}
         self._subscriber = client.zenoh.declare_subscriber(
             keys.stream_out(session_id, "*"), self._on_sample)
         self._detached = False
