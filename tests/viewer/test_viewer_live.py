@@ -16,18 +16,17 @@ from live_fakes import (
     box_mesh,
     camera_msg,
     free_port,
-    overlay_image,
     overlay_msg,
     particles_msg,
     poses_msg,
 )
 from liquidtwin_proto import (
+    ContainerVolume,
     Header,
     Metrics,
     ObjectMesh,
     SceneMeshes,
     Volumes,
-    ContainerVolume,
     encode_attachment,
     make_header,
     pack_array,
@@ -327,7 +326,8 @@ def test_page_draws_selected_session_and_pause_freezes_it():
     page = LiveViewer(feed, port=free_port(), session="b", run_thread=False)
     try:
         page.render_once()
-        assert page.selected is None and page.session_menu.options == ("(waiting for sessions)",)
+        assert page.selected is None
+        assert page.panel.session_menu.options == ("(waiting for sessions)",)
         pts = RNG.normal(size=(20, 3)).astype(np.float32)
         for sid in ("a", "b"):
             feed.handle_sample(*_sample(sid, "particles", particles_msg(pts, np.ones(20))))
@@ -337,7 +337,7 @@ def test_page_draws_selected_session_and_pause_freezes_it():
         feed.handle_sample(*_sample("b", "poses", poses_msg({"cup": pose}), direction="in"))
         page._sessions_at = -1e9
         page.render_once()
-        assert page.selected == "b" and page.session_menu.options == ("a", "b")
+        assert page.selected == "b" and page.panel.session_menu.options == ("a", "b")
         np.testing.assert_array_equal(page._cloud.points, pts)
         cup = page._mesh_handles["cup"]
         np.testing.assert_allclose(cup.position, pose[:3])
@@ -351,6 +351,6 @@ def test_page_draws_selected_session_and_pause_freezes_it():
         page.set_paused(False)
         page.render_once()
         np.testing.assert_array_equal(page._cloud.points, pts + 1)
-        assert page.pause_button.label == "pause"
+        assert page.panel.pause_button.label == "pause"
     finally:
         page.stop()

@@ -16,7 +16,15 @@ from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
-from liquidtwin_proto import ArrayError, Metrics, SceneMeshes, Volumes, WireError, parse, unpack_array
+from liquidtwin_proto import (
+    ArrayError,
+    Metrics,
+    SceneMeshes,
+    Volumes,
+    WireError,
+    parse,
+    unpack_array,
+)
 
 from .pointclouds import RecordingError, read_cloud
 

@@ -14,21 +14,19 @@ import time
 import numpy as np
 import viser
 
-from .buffers import Series, SessionSnapshot
-from .colormap import auto_vmax, legend_image, pose_to_viser, speed_colors
+from .buffers import SessionSnapshot
+from .colormap import auto_vmax, pose_to_viser, speed_colors
+from .panel import NO_SESSION, Panel, status_line
 from .subscribe import LiveFeed
 
 log = logging.getLogger("liquidtwin_viewer")
 
-NO_SESSION = "(waiting for sessions)"
 _OBJECT_RGB = (170, 170, 180)
 _CONTAINER_RGB = (200, 210, 225)
 _CAMERA_RGB = (230, 120, 30)
-_PLOT_COLORS = ("#2a6fdb", "#d9482b", "#2b9e4a", "#9b59b6", "#e0a800", "#17a2b8")
 _SLOW_UPDATE_S = 0.25  # status line and plots refresh at most this often
 _OVERLAY_UPDATE_S = 0.1  # the overlay image at most this often
 _SESSIONS_UPDATE_S = 1.0
-_MAX_GUI_IMAGE_W = 480  # wider overlays are subsampled for the side panel
 
 
 class LiveViewer:
@@ -56,7 +54,9 @@ class LiveViewer:
         self.server.scene.set_up_direction("+y")
         self.server.scene.add_grid("/grid", width=1.0, height=1.0, plane="xz",
                                    cell_size=0.05, section_size=0.25)
-        self._build_gui()
+        self.panel = Panel(self.server.gui, feed.config.window_s, on_session=self._request,
+                           on_pause=lambda: self.set_paused(not self._paused),
+                           on_frame=self._reframe)
         self._selected: str | None = None
         self._pending: str | None = None  # asked for from the dropdown (GUI thread)
         self._cloud = None
@@ -93,7 +93,7 @@ class LiveViewer:
     def set_paused(self, paused: bool) -> None:
         """Freeze (True) or resume (False) the view; buffering goes on meanwhile."""
         self._paused = bool(paused)
-        self.pause_button.label = "resume" if self._paused else "pause"
+        self.panel.set_paused(self._paused)
 
     def render_hz(self, window_s: float = 2.0) -> float:
         """Particle updates pushed to the page per second over the last ``window_s``."""
@@ -118,13 +118,17 @@ class LiveViewer:
             self._select(self._pending)
         sid = self._selected
         if sid is None:
-            self.status.content = f"waiting for sessions under `{self.feed.config.prefix}/`"
+            self.panel.status.content = (
+                f"waiting for sessions under `{self.feed.config.prefix}/`")
             return
         snap = self.feed.snapshot(sid)
         slow = now - self._slow_at >= _SLOW_UPDATE_S
         if slow:
             self._slow_at = now
-            self.status.content = self._status_line(snap)
+            status = self.feed.status(sid)
+            self.panel.status.content = status_line(
+                snap, paused=self._paused, render_hz=self.render_hz(),
+                state=status.state if status is not None else "")
         if self._paused or snap.version == self._drawn["version"]:
             return
         self._drawn["version"] = snap.version
@@ -139,10 +143,9 @@ class LiveViewer:
             self._overlay_at = now
             self._draw_overlay(snap)
         if slow:
-            self._plot(self.iou_plot, snap.iou, "iou")
-            self._plot_volumes(snap.volumes)
+            self.panel.plot(snap)
             if self._vmax is not None:
-                self.legend_text.content = f"0 — {self._vmax:.2f} m/s (faster clipped)"
+                self.panel.set_legend(self._vmax)
 
     def frame_view(self, center: np.ndarray, reach: float) -> None:
         """Point every browser's camera (and the reset view) at ``center`` (3,) m from
@@ -156,34 +159,6 @@ class LiveViewer:
         self._view = (np.asarray(center, np.float64), float(reach))
 
     # ------------------------------------------------------------------------- building
-    def _build_gui(self) -> None:
-        gui = self.server.gui
-        gui.add_markdown("**liquidtwin** live")
-        self.session_menu = gui.add_dropdown("session", (NO_SESSION,))
-        self.session_menu.on_update(lambda _: self._request(self.session_menu.value))
-        self.pause_button = gui.add_button("pause")
-        self.pause_button.on_click(lambda _: self.set_paused(not self._paused))
-        gui.add_button("frame particles").on_click(lambda _: self._reframe())
-        self.status = gui.add_markdown("starting")
-        with gui.add_folder("speed (m/s)"):
-            self.legend = gui.add_image(legend_image(), format="png")
-            self.legend_text = gui.add_markdown("0 — ? m/s")
-        with gui.add_folder("overlay"):
-            self.overlay = gui.add_image(np.full((48, 64, 3), 40, np.uint8), format="png",
-                                         label="no overlay yet")
-            self.overlay_text = gui.add_markdown("blue: observed · green: model · yellow: both")
-        self._plots = gui.add_folder("plots")
-        with self._plots:
-            window = self.feed.config.window_s
-            x = {"time": False, "range": (-window, 0.0)}
-            self.iou_plot = gui.add_uplot(
-                (np.zeros(0), np.zeros(0)), ({"label": "t (s)"}, {
-                    "label": "IOU", "stroke": _PLOT_COLORS[0], "width": 2}),
-                title="IOU", scales={"x": x, "y": {"range": (0.0, 1.0)}}, aspect=2.0)
-            self.volume_plot = None
-            self._volume_names: tuple[str, ...] = ()
-            self._x_scale = x
-
     def _reset_drawn(self) -> None:
         self._drawn = {"version": -1, "meshes": None, "poses": None, "cameras": None,
                        "frames": -1, "overlay": -1}
@@ -244,68 +219,10 @@ class LiveViewer:
 
     def _draw_overlay(self, snap: SessionSnapshot) -> None:
         self._drawn["overlay"] = snap.overlay_version
-        image = snap.overlay
-        step = int(np.ceil(image.shape[1] / _MAX_GUI_IMAGE_W))
-        small = np.ascontiguousarray(image[::step, ::step])
-        self.overlay.image = small
-        self.overlay.label = f"{snap.overlay_camera} · {image.shape[1]}×{image.shape[0]}"
+        shown = self.panel.show_overlay(snap.overlay_camera, snap.overlay, snap.metrics)
         frustum = self._frustums.get(snap.overlay_camera)
         if frustum is not None:
-            frustum.image = small
-        info = getattr(snap.metrics, "overlay", None)
-        if info is not None and (info.observed_px or info.model_px):
-            self.overlay_text.content = (
-                f"observed {info.observed_px} px · model {info.model_px} px · "
-                f"both {info.overlap_px} px")
-
-    def _plot(self, handle, series: Series, name: str) -> None:
-        y = series.values.get(name, np.zeros(0))
-        keep = np.isfinite(y)
-        handle.data = (series.t[keep], y[keep])
-
-    def _plot_volumes(self, series: Series) -> None:
-        names = tuple(series.values)
-        if not names:
-            return
-        if names != self._volume_names:
-            if self.volume_plot is not None:
-                self.volume_plot.remove()
-            with self._plots:
-                self.volume_plot = self.server.gui.add_uplot(
-                    self._volume_data(series, names),
-                    ({"label": "t (s)"}, *({"label": f"{n} (ml)", "width": 2,
-                                            "stroke": _PLOT_COLORS[(i + 1) % len(_PLOT_COLORS)]}
-                                           for i, n in enumerate(names))),
-                    title="volumes (ml)", scales={"x": self._x_scale}, aspect=2.0)
-            self._volume_names = names
-        else:
-            self.volume_plot.data = self._volume_data(series, names)
-
-    @staticmethod
-    def _volume_data(series: Series, names) -> tuple:
-        keep = np.all([np.isfinite(series.values[n]) for n in names], axis=0)
-        return (series.t[keep], *(series.values[n][keep] for n in names))
-
-    # ---------------------------------------------------------------------------- state
-    def _status_line(self, snap: SessionSnapshot) -> str:
-        parts = [f"**{snap.session}**", "paused" if self._paused else "live",
-                 f"{snap.frames} frames", f"{snap.fps:.1f} fps in",
-                 f"{self.render_hz():.1f} Hz drawn"]
-        m = snap.metrics
-        if m is not None:
-            parts.append(f"lag {m.lag_ms:.0f} ms")
-            if m.sim_lag_s > 0:
-                parts.append(f"sim lag {m.sim_lag_s:.2f} s")
-        if np.isfinite(snap.age_s):
-            parts.append(f"last {snap.age_s:.1f} s ago")
-        if snap.particles is not None:
-            parts.append(f"{len(snap.particles.points)} particles")
-        if snap.rejected:
-            parts.append(f"{snap.rejected} undecodable ({snap.last_error[:80]})")
-        status = self.feed.status(snap.session)
-        if status is not None and status.state:
-            parts.append(status.state)
-        return " · ".join(parts)
+            frustum.image = shown
 
     def _initial_poses(self, session: str) -> dict:
         """Poses from the session's spec (objects' and cameras' initial poses), if listed."""
@@ -320,12 +237,10 @@ class LiveViewer:
 
     def _update_sessions(self) -> None:
         ids = self.feed.sessions()
-        options = tuple(ids) or (NO_SESSION,)
-        if options != tuple(self.session_menu.options):
-            self.session_menu.options = options  # may reset the value (on_update selects)
+        self.panel.set_sessions(ids)  # may reset the menu's value (then on_update asks)
         if self._selected is None and ids:
             pick = self.wanted if self.wanted in ids else ids[0]
-            self.session_menu.value = pick
+            self.panel.session_menu.value = pick
             self._select(pick)
 
     def _request(self, session: str) -> None:
@@ -340,6 +255,7 @@ class LiveViewer:
         if self._cloud is not None:
             self._cloud.remove()
             self._cloud = None
+        self.panel.reset()
         self._reset_drawn()
 
     def _reframe(self) -> None:
@@ -358,11 +274,15 @@ class LiveViewer:
 
     def _loop(self) -> None:
         period = 1.0 / self.max_hz
+        due = time.monotonic()
         while not self._stop.is_set():
-            started = time.monotonic()
             try:
                 self.render_once()
             except Exception:  # keep the page alive; the cause goes to the log
                 log.exception("liquidtwin-viewer: render failed")
                 self._stop.wait(1.0)
-            self._stop.wait(max(0.0, period - (time.monotonic() - started)))
+            # A fixed schedule keeps the average rate at max_hz despite late wake-ups; after a
+            # long stall it restarts instead of bursting to catch up.
+            now = time.monotonic()
+            due = max(due + period, now)
+            self._stop.wait(due - now)

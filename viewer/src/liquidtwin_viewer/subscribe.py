@@ -19,10 +19,10 @@ from liquidtwin_proto import (
     SessionRequest,
     WireError,
     decode_attachment,
+    error_name,
     make_header,
     parse,
     parse_error,
-    error_name,
 )
 
 from .buffers import SessionBuffer, SessionSnapshot
