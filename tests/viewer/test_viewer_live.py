@@ -352,5 +352,11 @@ def test_page_draws_selected_session_and_pause_freezes_it():
         page.render_once()
         np.testing.assert_array_equal(page._cloud.points, pts + 1)
         assert page.panel.pause_button.label == "pause"
+        # Choosing another session in the menu: its cloud, none of b's meshes.
+        feed.handle_sample(*_sample("a", "particles", particles_msg(pts - 1, np.ones(20))))
+        page._request("a")
+        page.render_once()
+        assert page.selected == "a" and page._mesh_handles == {}
+        np.testing.assert_array_equal(page._cloud.points, pts - 1)
     finally:
         page.stop()
