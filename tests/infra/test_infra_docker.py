@@ -71,24 +71,51 @@ def test_zenoh_router_listens_on_7447_without_multicast():
     assert "7447:7447" in zenoh["ports"]
 
 
-def test_server_connects_to_the_router():
+def _router_endpoint() -> tuple[str, int]:
+    """(service name, port) a container reaches the router at."""
+    command = SERVICES["zenoh"]["command"]
+    port = int(command[command.index("--listen") + 1].rsplit(":", 1)[1])
+    return "zenoh", port
+
+
+def _connect_target(endpoint: str) -> tuple[str, int]:
+    assert endpoint.startswith("tcp/"), endpoint
+    host, port = endpoint[len("tcp/"):].rsplit(":", 1)
+    return host, int(port)
+
+
+def test_server_command_is_a_valid_serve_invocation_against_the_router():
+    from liquidtwin.cli import build_parser
+
     server = SERVICES["server"]
     assert server["build"] == {"context": ".", "dockerfile": "server/Dockerfile"}
-    assert server["command"] == ["liquidtwin", "serve", "--connect", "tcp/zenoh:7447"]
+    command = server["command"]
+    assert command[0] == "liquidtwin"
+    args = build_parser().parse_args(command[1:])  # exits (fails the test) on a bad flag
+    assert args.command == "serve"
+    assert _connect_target(args.connect) == _router_endpoint()
     assert "zenoh" in server["depends_on"]
+    # the state directory is a volume, so logs and checkpoints survive the container
+    state = command[command.index("--state-dir") + 1]
+    assert any(v.split(":")[1] == state for v in server["volumes"])
+    assert state.split(":")[0] not in ("", ".")
 
 
-def test_viewer_serves_on_8080_from_mounted_recordings():
+def test_viewer_command_is_a_valid_live_invocation_with_its_port_published():
+    from liquidtwin_viewer.cli import build_parser
+
     viewer = SERVICES["viewer"]
     assert viewer["build"] == {"context": ".", "dockerfile": "viewer/Dockerfile"}
-    assert "8080:8080" in viewer["ports"]
-    command = viewer["command"]
-    assert command[command.index("--host") + 1] == "0.0.0.0"
-    assert command[command.index("--port") + 1] == "8080"
-    mcap = command[command.index("--mcap") + 1]
-    mounts = [v.split(":") for v in viewer["volumes"]]
-    assert any(mcap.startswith(target + "/") and (ROOT / source).resolve().parent == ROOT
-               for source, target, *_ in mounts)
+    args = build_parser().parse_args(viewer["command"])
+    assert args.mcap is None, "the compose viewer shows live data"
+    assert _connect_target(args.connect) == _router_endpoint()
+    assert args.host == "0.0.0.0"
+    published = {int(p.split(":")[1]) for p in viewer["ports"]}
+    assert args.port in published
+    # the image's default command is the same live invocation
+    steps = parse_dockerfile(dockerfile_of("viewer"))
+    assert [exec_form(a) for i, a in steps if i == "CMD"][-1] == viewer["command"]
+    assert ("EXPOSE", str(args.port)) in steps
 
 
 @pytest.mark.parametrize("service", ["server", "viewer"])
@@ -123,9 +150,8 @@ def test_viewer_dockerfile_has_no_torch_and_runs_the_viewer():
     steps = parse_dockerfile(path)
     assert "torch" not in path.read_text().replace("No torch", "")
     installs = pip_installs(steps)
-    assert installs == [["-c", "requirements.lock", "./viewer"]]
+    assert installs == [["-c", "requirements.lock", "./proto", "./viewer"]]
     assert [exec_form(a) for i, a in steps if i == "ENTRYPOINT"] == [["liquidtwin-viewer"]]
-    assert ("EXPOSE", "8080") in steps
 
 
 def test_build_context_excludes_the_venv():
