@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import FakeServer, free_port, particle_cloud, wait_until
+from client_fakes import FakeServer, free_port, particle_cloud, wait_until
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms

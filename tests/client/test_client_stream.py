@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import free_port
+from client_fakes import free_port
 from liquidtwin_proto import TrackingMode
 
 from liquidtwin_client import read_results
