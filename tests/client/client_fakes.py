@@ -66,6 +66,7 @@ class FakeServer:
     requests: [(method, session or None, request message)]. sessions: {id: SessionStatus}.
     answered: number of frames answered. skip_stamps: frame stamps left unanswered.
     answer_delay_s: frames are answered that late, from a timer thread.
+    close_after: after answering this many frames the session is closed (state "closed").
     create_delay_s: how long create_session takes (replied from another thread).
     """
 
@@ -80,6 +81,7 @@ class FakeServer:
         self.skip_stamps: set[int] = set()
         self.create_delay_s = 0.0
         self.answer_delay_s = 0.0
+        self.close_after: int | None = None
         self.answer_times: dict[int, float] = {}  # frame stamp -> monotonic s answered
         self.rejected = 0
         self._mask_pending: dict[str, bool] = {}
@@ -161,6 +163,9 @@ class FakeServer:
             if parsed.name == "mask":
                 self._mask_pending[parsed.session] = True
             if parsed.name != "poses" or header.stamp_ns in self.skip_stamps:
+                return
+            if self.close_after is not None and self.answered >= self.close_after:
+                self.sessions[parsed.session].state = "closed"
                 return
             had_mask = self._mask_pending.pop(parsed.session, False)
         args = (parsed.session, header, FrameTransforms.FromString(payload), had_mask)

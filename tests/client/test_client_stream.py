@@ -74,7 +74,8 @@ def test_unanswered_frames_time_out_and_streaming_goes_on(fake_server, tmp_path)
     assert code == 0 and time.monotonic() - t < 10
     assert (s["frames_sent"], s["frames_answered"], s["frames_timed_out"]) == (84, 82, 2)
     assert fake_server.sessions[s["session_id"]].state == "running"  # --keep-session
-    assert [m for m, _, _ in fake_server.requests] == ["create_session", "status"]
+    # each timeout asks whether the session still lives; --keep-session asks once more
+    assert [m for m, _, _ in fake_server.requests] == ["create_session"] + ["status"] * 3
     assert len(read_results(out)["particles"]) == 82
 
 
@@ -113,3 +114,13 @@ def test_stream_help_runs_as_a_process():
     for flag in ("--session", "--rate", "--tracking", "--connect", "--prefix", "--out",
                  "--keep-session", "--timeout", "--json"):
         assert flag in run.stdout
+
+
+def test_a_session_closed_on_the_server_aborts_the_stream(fake_server, tmp_path, capsys):
+    fake_server.close_after = 5
+    t = time.monotonic()
+    code, out, s = _stream(fake_server, tmp_path, "--session", "gone", "--rate", "max",
+                           "--frame-timeout", "0.3")
+    assert code == 1 and s is None and time.monotonic() - t < 5
+    assert "session 'gone' is closed on the server" in capsys.readouterr().err
+    assert len(read_results(out)["particles"]) == 5

@@ -20,7 +20,7 @@ from .connection import (CREATE_TIMEOUT_S, DEFAULT_CONNECT, TRACKING_MODES, Clie
 from .recording import RecordingError, RecordingSummary, summarize_recording
 from .replay import load_replay
 from .results import ResultsWriter
-from .stream import RATES, stream_replay
+from .stream import RATES, StreamAborted, stream_replay
 from .summary import format_table
 
 
@@ -130,7 +130,7 @@ def _stream(args: argparse.Namespace) -> int:
                                         tracking=args.tracking, progress=not args.no_progress)
             finally:
                 _finish(session, writer, keep=args.keep_session)
-    except (ServerError, TimeoutError, ValueError, OSError) as exc:
+    except (ServerError, TimeoutError, StreamAborted, ValueError, OSError) as exc:
         return fail(str(exc))
     except KeyboardInterrupt:
         print("liquidtwin-client stream: interrupted", file=sys.stderr)

@@ -25,6 +25,8 @@ from .session import SessionHandle
 from .summary import StreamSummary, Tally
 
 RATES = ("realtime", "max")
+#: Session states in which no more frames will be answered.
+_DEAD = ("closed", "failed")
 #: After the last frame, how long to keep collecting its remaining outputs, s.
 _TAIL_S = 2.0
 
@@ -90,6 +92,7 @@ def stream_replay(session: SessionHandle, replay: Replay, *, rate: str = "max",
                 if not drain_until(lambda: tally.is_answered(s),
                                    time.monotonic() + frame_timeout):
                     tally.timed_out += 1
+                    _check_alive(session)
         while (out := session.next_output(timeout=0)) is not None:
             take(out)
     last = replay.frames[-1].stamp_ns if replay.frames else None
@@ -106,3 +109,16 @@ def stream_replay(session: SessionHandle, replay: Replay, *, rate: str = "max",
                          lost_outputs=session.dropped_outputs + session.bad_outputs,
                          wall_s=wall)
 
+
+
+class StreamAborted(RuntimeError):
+    """The session stopped answering for good (closed or failed on the server)."""
+
+
+def _check_alive(session: SessionHandle) -> None:
+    """After a frame timed out: raise StreamAborted if the session is closed or failed
+    (ServerError / TimeoutError when the server no longer knows it or is gone)."""
+    state = session.status(timeout=5.0).state
+    if state in _DEAD:
+        raise StreamAborted(f"session {session.session_id!r} is {state} on the server; "
+                            "see the server log")
