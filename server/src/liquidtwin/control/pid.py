@@ -12,7 +12,10 @@ with ė_flow the measured flow (ml/s, low-pass filtered over ``flow_filter_s``):
 tilts at full speed while much remains (the saturated P term does the thesis's pre-tilt,
 but stops as soon as liquid flows, whatever the angle), and tilts back when liquid flows
 faster than ``remaining / lead_s``, so the flow dies out as the target nears. Done when
-poured ≥ target − ``tolerance_ml``; then the source returns upright at ``max_rate``.
+poured + drain ≥ target − ``tolerance_ml``, drain being what will still flow while the source
+turns back to the angle where flow began (flow × (angle − onset) / max_rate / 2, the flow
+falling linearly to zero); then the source returns upright at ``max_rate``. Without the drain
+term a slow arm (low max_rate) overshoots by the liquid that leaves on its way back.
 
 Defaults scale with the task (``gain = 2·max_rate / target``: full rate until half is
 poured); :func:`thesis_gains` gives the thesis's fixed gains (P = 0.01π/180 rad/s per ml,
@@ -56,6 +59,7 @@ class PourPID:
     rate: float = 0.0
     done: bool = False
     flow: float = 0.0
+    onset: float = -1.0             # commanded angle where flow was first seen, rad (−1: not yet)
     _last: tuple = field(default=(), repr=False)   # (t s, poured ml) of the previous update
 
     def __post_init__(self):
@@ -87,7 +91,10 @@ class PourPID:
                 self.flow += a * ((poured_ml - self._last[1]) / dt - self.flow)
         self._last = (t, poured_ml)
         error = self.target_ml - poured_ml
-        if not self.done and error <= self.tolerance_ml:
+        if self.onset < 0 and self.flow > 0.05 * self.target_ml:     # flowing: > 5 % of the target per s
+            self.onset = self.angle
+        drain = 0.5 * self.flow * max(self.angle - self.onset, 0.0) / self.max_rate if self.onset >= 0 else 0.0
+        if not self.done and error - max(drain, 0.0) <= self.tolerance_ml:
             self.done = True
         if self.done:
             rate = -self.max_rate
@@ -104,7 +111,7 @@ class PourPID:
     def state_dict(self) -> dict:
         """Plain numbers only (checkpoints)."""
         d = {k: float(getattr(self, k)) for k in ("target_ml", "max_angle", "max_rate", "angle", "gain", "lead_s",
-                                                   "tolerance_ml", "flow_filter_s", "rate", "flow")}
+                                                   "tolerance_ml", "flow_filter_s", "rate", "flow", "onset")}
         d["done"] = bool(self.done)
         d["has_last"] = bool(self._last)
         d["last_t"], d["last_ml"] = (float(self._last[0]), float(self._last[1])) if self._last else (0.0, 0.0)
@@ -113,6 +120,7 @@ class PourPID:
     @classmethod
     def from_state_dict(cls, d: dict) -> "PourPID":
         pid = cls(**{k: d[k] for k in ("target_ml", "max_angle", "max_rate", "angle", "gain", "lead_s",
-                                       "tolerance_ml", "flow_filter_s", "rate", "flow")}, done=bool(d["done"]))
+                                       "tolerance_ml", "flow_filter_s", "rate", "flow", "onset")},
+                  done=bool(d["done"]))
         pid._last = (d["last_t"], d["last_ml"]) if d["has_last"] else ()
         return pid

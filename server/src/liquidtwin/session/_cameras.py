@@ -86,7 +86,7 @@ class Cameras:
         return self._build(name, e)
 
     def state_dict(self) -> dict:
-        return {name: {k: (torch.as_tensor(v) if isinstance(v, np.ndarray) else v) for k, v in e.items()}
+        return {name: {k: (torch.tensor(v) if isinstance(v, np.ndarray) else v) for k, v in e.items()}
                 for name, e in self.known.items()}
 
     def load_state_dict(self, state: dict) -> None:
