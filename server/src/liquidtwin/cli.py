@@ -180,6 +180,10 @@ COMMANDS: dict[str, Command] = {
 }
 
 
+from .service.cli import HELP as _SERVE_HELP, add_serve_parser, run_serve  # noqa: E402
+COMMANDS["serve"] = Command(_SERVE_HELP, run_serve, add_serve_parser)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``liquidtwin`` argument parser (pass-through commands parse their own options)."""
     parser = argparse.ArgumentParser(
