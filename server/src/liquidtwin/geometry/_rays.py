@@ -81,6 +81,8 @@ def column_hits(vertices: np.ndarray, faces: np.ndarray,
         cols.append(c[ok])
         ys.append((w[ok] * tri[f[ok], :, 1]).sum(1))
         start = stop
+    if not cols:                              # no face spans any query column
+        return np.zeros(0, np.int64), np.zeros(0)
     col, y = np.concatenate(cols), np.concatenate(ys)
     o = np.lexsort((y, col))
     return col[o], y[o]
