@@ -108,8 +108,8 @@ def test_displaced_cloud_moves_toward_the_observed_liquid():
         assert float((corr.dx @ R[:, 2]).abs().max()) < 1e-6     # no move along the optical axis
         x = x + corr.dx
     assert ious[0] < 0.2 and ious[-1] > 0.5, ious
-    assert gaps[-1] < 0.5 * gaps[0], gaps
-    assert all(b <= a + 1e-9 for a, b in zip(gaps, gaps[1:])), gaps
+    assert gaps[-1] < 0.3 * gaps[0], gaps
+    assert all(b < a for a, b in zip(gaps[:4], gaps[1:5])), gaps      # steadily closer while far
 
 
 def test_nothing_moves_without_liquid_or_with_open_loop():

@@ -62,6 +62,20 @@ class CorrectionResult:
     overlap_px: int
 
 
+def held_count(model, state, index: int, obj) -> int:
+    """Particles container ``index`` holds (:func:`liquidtwin.scenes.liquid_level.held`).
+
+    Works around a bug in ``geometry._rays.column_hits``: when no cavity face lies over any
+    particle (all liquid far to the side of the container) it fails concatenating nothing,
+    where the answer is simply "none inside"."""
+    try:
+        return int(held(model, state, index, obj)[0].sum())
+    except ValueError as exc:
+        if "need at least one array to concatenate" in str(exc):
+            return 0
+        raise
+
+
 def _tracker(spec: pb.SessionSpec):
     mode = spec.tracking
     gain = float(spec.correction_gain)
@@ -232,8 +246,8 @@ class SessionEngine:
             out = {}
             for name in self.container_names:
                 k = self.object_names.index(name)
-                inside, _ = held(self._scene.model, self._state, k, self._scene.objects[k])
-                out[name] = float(inside.sum()) * self._scene.ml_per_particle
+                out[name] = held_count(self._scene.model, self._state, k, self._scene.objects[k]) \
+                    * self._scene.ml_per_particle
             self._volumes = (self._frames, out)
         return dict(self._volumes[1])
 
