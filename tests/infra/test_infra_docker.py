@@ -93,7 +93,7 @@ def test_server_command_is_a_valid_serve_invocation_against_the_router():
     assert command[0] == "liquidtwin"
     args = build_parser().parse_args(command[1:])  # exits (fails the test) on a bad flag
     assert args.command == "serve"
-    assert _connect_target(args.connect) == _router_endpoint()
+    assert [_connect_target(e) for e in args.connect] == [_router_endpoint()]
     assert "zenoh" in server["depends_on"]
     # the state directory is a volume, so logs and checkpoints survive the container
     state = command[command.index("--state-dir") + 1]
