@@ -98,9 +98,10 @@ class SessionEngine:
     def create(cls, spec: pb.SessionSpec, *, device: str = "cpu", progress: bool = False,
                base_dir: str = ".") -> "SessionEngine":
         """Build objects, model and settled fill of ``spec.scene``, cameras from ``spec.cameras``
-        and the tracker of ``spec.tracking``. Raises EngineError (BAD_REQUEST, UNKNOWN_NAME,
+        and the tracker of ``spec.tracking``. ``device``: "cpu" (default: then ``spec.device``
+        decides) or "cuda[:N]". Raises EngineError (BAD_REQUEST, UNKNOWN_NAME,
         INFEASIBLE: e.g. a tracking mode not implemented, no CUDA, more liquid than fits)."""
-        device = device or spec.device or "cpu"
+        device = device if device and device != "cpu" else (spec.device or "cpu")
         if not (device == "cpu" or device.startswith("cuda")):
             raise EngineError(BAD_REQUEST, f"device must be 'cpu' or 'cuda[:N]', got {device!r}")
         if device.startswith("cuda") and not torch.cuda.is_available():

@@ -1,0 +1,103 @@
+"""Per-frame cost of a session: open loop vs warp-field tracking at a few thousand particles.
+
+    OMP_NUM_THREADS=1 .venv/bin/python bench/tracker_cost.py [--particles 4000 8000] [--frames 15]
+
+A basin on a table is filled with about N particles (the fill settles first, not timed), a
+640×480 camera looks into it from 40° above, and each frame advances the simulation by one
+camera period (1/30 s = 4 steps) and corrects with a mask: the model's own mask shifted
+20 px sideways, so the warp field has work to do. Prints and appends to bench/history.jsonl
+one record per (N, mode): median ms per frame, split into steps and correction.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import torch
+from liquidtwin_proto import liquidtwin_pb2 as pb
+
+from liquidtwin.camera import Camera, model_mask, visible
+from liquidtwin.session import SessionEngine
+
+HISTORY = Path(__file__).parent / "history.jsonl"
+ML_PER_PARTICLE = 0.07      # settled ml per particle at h = 1.1 cm (measured by the fills)
+
+
+def _vm_hwm() -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    return 0
+
+
+def _commit() -> str:
+    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                         cwd=Path(__file__).parent)
+    return out.stdout.strip() or "unknown"
+
+
+def _spec(n: int, mode: int) -> pb.SessionSpec:
+    scene = pb.SceneSpec(name=f"basin_{n}", cameras=["cam"])
+    basin = scene.objects.add(name="basin", model="basin", container=True)
+    basin.initial_pose.extend([0, 0, 0, 0, 0, 0, 1.0])
+    table = scene.objects.add(name="table", model="table")
+    table.initial_pose.extend([0, 0, 0, 0, 0, 0, 1.0])
+    scene.fills.add(container="basin", volume_ml=n * ML_PER_PARTICLE)
+    scene.simulation.h = 0.011
+    scene.simulation.dt = 1.0 / 120.0
+    scene.simulation.iterations = 4
+    return pb.SessionSpec(scene=scene, tracking=mode)
+
+
+def run(n: int, frames: int) -> list[dict]:
+    cam = Camera.look_at([0.0, 0.45, 0.54], [0.0, 0.03, 0.0], width=640, height=480, fov_y_deg=45.0, name="cam")
+    pose = cam.pose.numpy()
+    out = []
+    for mode in (pb.OPEN_LOOP, pb.WARP_FIELD):
+        eng = SessionEngine.create(_spec(n, mode))
+        eng.set_camera("cam", K=cam.K.numpy(), width=640, height=480, pose=pose)
+        step_ms, corr_ms, total = [], [], []
+        for k in range(frames):
+            x = torch.as_tensor(eng.positions())
+            uv, _ = cam.project(x.double())
+            seen = visible(cam, x.double(), margin_px=5.0)
+            mask = np.roll(model_mask(uv, seen, 480, 640, 5.0).numpy(), 20, axis=1)
+            start = time.perf_counter()
+            r = eng.advance(k / 30.0, {})
+            c = eng.correct("cam", mask)
+            total.append(1e3 * (time.perf_counter() - start))
+            step_ms.append(r.step_ms)
+            corr_ms.append(c.correction_ms)
+        rec = dict(what="tracker_frame", particles=eng.n_particles, mode=pb.TrackingMode.Name(mode),
+                   width=640, height=480, steps_per_frame=4, ms=float(np.median(total[1:])),
+                   step_ms=float(np.median(step_ms[1:])), correction_ms=float(np.median(corr_ms[1:])),
+                   peak_mem_bytes=_vm_hwm(), commit=_commit(),
+                   date=datetime.now(timezone.utc).isoformat(timespec="seconds"), threads=torch.get_num_threads())
+        print(json.dumps(rec), flush=True)
+        out.append(rec)
+    return out
+
+
+def main(argv=None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--particles", type=int, nargs="+", default=[4000, 8000])
+    p.add_argument("--frames", type=int, default=15)
+    p.add_argument("--no-history", action="store_true", help="do not append to bench/history.jsonl")
+    args = p.parse_args(argv)
+    torch.set_num_threads(1)
+    records = [r for n in args.particles for r in run(n, max(2, args.frames))]
+    if not args.no_history:
+        with HISTORY.open("a") as f:
+            for r in records:
+                f.write(json.dumps(r) + "\n")
+    return records
+
+
+if __name__ == "__main__":
+    main()
