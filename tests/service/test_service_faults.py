@@ -51,6 +51,7 @@ class Victim(threading.Thread):
                 stamp = T0 + i * DT_NS
                 self.peer.send(VICTIM, "poses", poses_msg({"cup": _tilt(i)}), stamp)
                 self.peer.wait_output(VICTIM, "particles", stamp, timeout=30)
+                self.peer.wait_output(VICTIM, "metrics", stamp, timeout=30)
                 self.stamps.append(stamp)
                 i += 1
         except Exception as exc:  # noqa: BLE001
