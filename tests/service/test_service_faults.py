@@ -270,3 +270,71 @@ def test_after_the_fuzz_the_server_serves_and_the_bystander_was_untouched(srv):
             np.testing.assert_array_equal(pos, engine.positions())
             np.testing.assert_array_equal(speed, engine.speeds())
     print(f"bystander: {n} frames streamed during the fuzz, all answered, identical to the in-process engine")
+
+
+class _BuggyEngine:
+    """A stand-in engine (the SessionEngine API) that crashes on a frame naming x > 100 m."""
+
+    object_names, container_names, camera_names, n_particles, dt = ("cup",), ("cup",), set(), 3, 0.01
+
+    def __init__(self, spec, device="cpu"):
+        self.spec, self.sim_time_s, self.x = spec, 0.0, np.zeros((3, 3), np.float32)
+
+    def camera_size(self, name):
+        return None
+
+    def advance(self, t_s, poses, *, max_steps=8):
+        from liquidtwin.session import FrameResult
+        if poses["cup"][0] > 100:
+            raise ZeroDivisionError("a bug in the engine")
+        self.sim_time_s = t_s
+        self.x[:] = poses["cup"][:3]
+        return FrameResult(1, 0.1, 0.0, t_s)
+
+    def positions(self):
+        return self.x.copy()
+
+    def speeds(self):
+        return np.zeros(3, np.float32)
+
+    def volumes(self):
+        return {"cup": 1.0}
+
+    def control(self):
+        return None
+
+    def reset(self):
+        self.sim_time_s = 0.0
+
+    def state_dict(self):
+        return {"x": self.x.tolist(), "t": self.sim_time_s}
+
+
+def test_an_engine_bug_fails_only_its_session_and_reset_revives_it(tmp_path):
+    from liquidtwin.service import ServeConfig, Server
+    from zraw import free_port
+
+    cfg = ServeConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], state_dir=tmp_path / "state")
+    server = Server(cfg, engine_factory=_BuggyEngine)
+    server.start()
+    peer = Peer(cfg.listen[0])
+    try:
+        for sid in ("buggy", "fine"):
+            peer.create(sid, cup_spec())
+            peer.watch(sid)
+        for i, x in enumerate([0.0, 500.0, 1.0]):
+            stamp = T0 + i * DT_NS
+            peer.send("fine", "poses", poses_msg({"cup": [x / 100, 0, 0, 0, 0, 0, 1]}), stamp)
+            peer.send("buggy", "poses", poses_msg({"cup": [x, 0, 0, 0, 0, 0, 1]}), stamp)
+            peer.wait_output("fine", "metrics", stamp)
+        assert [round(float(cloud_arrays(m)[0][0, 0])) for _, m in peer.of("fine", "particles")] == [0, 5, 0]
+        assert len(peer.of("buggy", "particles")) == 1               # nothing after the crash
+        status = peer.session_rpc("buggy", "status")
+        assert status.state == "failed" and peer.session_rpc("fine", "status").state == "running"
+        assert peer.session_rpc("buggy", "reset").state == "running"
+        peer.send("buggy", "poses", poses_msg({"cup": [2.0, 0, 0, 0, 0, 0, 1]}), T0 + 10 * DT_NS)
+        m = peer.wait_output("buggy", "metrics", T0 + 10 * DT_NS)
+        assert m.frames_done == 2 and m.sim_time_s == 0.0
+    finally:
+        peer.close()
+        server.stop()

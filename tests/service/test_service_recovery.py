@@ -119,3 +119,36 @@ def test_a_segment_cut_anywhere_reads_back_up_to_the_cut(tmp_path):
     log.close()
     assert log.path.read_bytes().endswith(MCAP_MAGIC)
     assert [r.data for r in read_segment(log.path)] == full
+
+
+def test_sigterm_shuts_down_cleanly_and_a_restart_restores(servers):
+    proc = servers.start("--checkpoint-s", "60")            # only the shutdown checkpoint
+    peer = servers.peer(proc)
+    peer.create("term", cup_spec())
+    peer.watch("term")
+    for i in range(4):
+        peer.send("term", "poses", poses_msg({"cup": UP}), T0 + i * DT_NS)
+        peer.wait_output("term", "metrics", T0 + i * DT_NS)
+    sim_t = peer.session_rpc("term", "status").sim_time_s
+    assert proc.stop() == 0
+    d = proc.state_dir / "sessions" / "term"
+    assert (d / "log-0000.mcap").read_bytes().endswith(MCAP_MAGIC)         # footer written
+    assert torch.load(d / "checkpoint.pt", weights_only=True)["engine"]["sim_t"] == sim_t
+    assert "shutting down" in proc.log.read_text()
+    again = servers.start(state_dir=proc.state_dir)
+    (st,) = servers.peer(again).list_sessions().sessions
+    assert st.restored and st.sim_time_s == sim_t and st.frames_done == 4
+
+
+def test_cli_refuses_cuda_without_cuda_and_bad_options(tmp_path):
+    import subprocess
+
+    from zraw import BIN
+    if torch.cuda.is_available():
+        return
+    run = subprocess.run([str(BIN / "liquidtwin"), "serve", "--device", "cuda", "--state-dir", str(tmp_path)],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "CUDA" in run.stderr
+    run = subprocess.run([str(BIN / "liquidtwin"), "serve", "--prefix", "a//b", "--state-dir", str(tmp_path)],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "prefix" in run.stderr

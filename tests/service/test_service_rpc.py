@@ -255,3 +255,31 @@ def test_rejected_and_out_of_order_inputs_are_counted(srv):
     m = peer.wait_output(sid, "metrics", stamp + DT_NS)
     assert (m.rejected, m.dropped_out_of_order, m.frames_in, m.frames_done) == (len(bad) + 2, 1, 2, 2)
     peer.session_rpc(sid, "close")
+
+
+def test_connect_mode_joins_a_router_with_its_own_prefix(servers, port):
+    """``--connect`` (docker-compose's router) with ``--prefix``: the server listens on nothing
+    and answers through the router it joined, under its prefix only."""
+    import zenoh
+    from zraw import Peer, ServeProc
+
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"router"')
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    hub = zenoh.open(cfg)
+    try:
+        proc = ServeProc(servers.tmp / "state", "--prefix", "lab/twin", "--server-id", "srv-7", *[],
+                         connect=f"tcp/127.0.0.1:{port}")
+        servers.procs.append(proc)
+        assert "ready on connected to tcp/127.0.0.1:" in proc.ready_line and "prefix lab/twin" in proc.ready_line
+        peer = Peer(f"tcp/127.0.0.1:{port}", prefix="lab/twin")
+        servers.peers.append(peer)
+        assert peer.list_sessions().server_id == "srv-7"
+        alive = [str(r.ok.key_expr) for r in hub.liveliness().get("lab/twin/alive/servers/*", timeout=5) if r.ok]
+        assert alive == ["lab/twin/alive/servers/srv-7"]
+        other = Peer(f"tcp/127.0.0.1:{port}")                # default prefix: nobody answers
+        servers.peers.append(other)
+        assert other.query("rpc/list_sessions", b"", timeout=1)[0] == "none"
+    finally:
+        hub.close()

@@ -39,12 +39,12 @@ def free_port() -> int:
 class ServeProc:
     """``liquidtwin serve`` on a free port of 127.0.0.1; ``ready_s`` = start-to-ready time."""
 
-    def __init__(self, state_dir: Path, *extra: str, log: Path | None = None):
+    def __init__(self, state_dir: Path, *extra: str, log: Path | None = None, connect: str | None = None):
         self.state_dir = Path(state_dir)
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.endpoint = connect or f"tcp/127.0.0.1:{free_port()}"
         self.log = log or self.state_dir.parent / f"serve-{self.endpoint.rsplit(':', 1)[1]}.log"
-        cmd = [str(BIN / "liquidtwin"), "serve", "--listen", self.endpoint, "--state-dir", str(self.state_dir),
-               "--threads", "1", *extra]
+        where = ["--connect", connect] if connect else ["--listen", self.endpoint]
+        cmd = [str(BIN / "liquidtwin"), "serve", *where, "--state-dir", str(self.state_dir), "--threads", "1", *extra]
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
         self._err = open(self.log, "w")
         t0 = time.monotonic()
