@@ -15,6 +15,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -182,3 +183,48 @@ def test_results_mcap_holds_every_frames_particles(runs):
             assert pos.shape == (metrics[m.publish_time_ns].particles, 3) and len(pos) > 0
             assert np.isfinite(pos).all() and (speed >= 0).all()
         assert res["session"][-1].message.state == "closed"
+
+
+def test_the_library_drives_a_real_session(module_servers):
+    """Client/SessionHandle against the real server: RPCs, a few frames, a pour task."""
+    from liquidtwin_client import Client, ServerError, load_replay
+
+    server = module_servers.start()
+    replay = load_replay(RECORDINGS["dump"])
+    with Client(connect=server.endpoint) as client:
+        s = client.create_session(replay.session_spec(), session_id="lib", tracking="open_loop")
+        assert s.last_status.particles > 0 and s.last_status.spec.tracking == 1
+        assert "lib" in [st.session_id for st in client.list_sessions()]
+        meshes = {m.name: m for m in s.meshes()}
+        assert sorted(meshes) == ["source", "table", "target"]
+        assert meshes["source"].container and not meshes["table"].container
+        assert meshes["source"].vertices.shape[1] == 3 and meshes["source"].faces.shape[1] == 3
+        with pytest.raises(ServerError) as err:
+            s.set_pour_task("source", "no-such-bowl", 5.0)
+        assert err.value.code_name in ("UNKNOWN_NAME", "INFEASIBLE") and "no-such-bowl" in \
+            err.value.message
+        status = s.set_pour_task("source", "target", 5.0)
+        assert status.task.pour.volume_ml == 5.0
+        got = []
+        s.on("control", got.append)
+        for frame in replay.frames[:5]:  # lockstep by hand: wait for each frame's particles
+            for sample in frame.samples:
+                s.publish_raw(sample.stream, sample.payload, sample.stamp_ns)
+            for out in s.outputs(timeout=30.0):
+                if out.stream == "particles" and out.header.stamp_ns == frame.stamp_ns:
+                    pos, _ = decode_particles(out.message)
+                    assert pos.shape == (status.particles, 3)
+                    break
+            else:
+                pytest.fail(f"no particles for frame {frame.stamp_ns}:\n{server.stderr()[-2000:]}")
+        assert s.status().frames_done == 5
+        deadline = time.monotonic() + 5.0
+        while len(got) < 5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(got) == 5 and got[-1].message.object == "source"
+        assert s.reset().frames_done == 5  # counters kept, liquid back to the fill
+        assert s.close().state == "closed"
+        with pytest.raises(ServerError) as err:
+            client.session("lib")
+        print(f"status of a closed session: {err.value}")
+        assert err.value.code_name == "UNKNOWN_SESSION"
