@@ -124,3 +124,15 @@ def test_a_session_closed_on_the_server_aborts_the_stream(fake_server, tmp_path,
     assert code == 1 and s is None and time.monotonic() - t < 5
     assert "session 'gone' is closed on the server" in capsys.readouterr().err
     assert len(read_results(out)["particles"]) == 5
+
+
+def test_the_client_needs_neither_torch_nor_the_server_nor_the_viewer():
+    code = ("import sys\n"
+            "for name in ('torch', 'liquidtwin', 'liquidtwin_viewer', 'cv2', 'trimesh'):\n"
+            "    sys.modules[name] = None\n"
+            "import liquidtwin_client, liquidtwin_client.cli\n"
+            "from liquidtwin_client import load_replay\n"
+            f"print(len(load_replay({str(GOLDEN)!r}).frames))\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == str(len(STAMPS))
