@@ -312,7 +312,7 @@ class _BuggyEngine:
 
 def test_an_engine_bug_fails_only_its_session_and_reset_revives_it(tmp_path):
     from liquidtwin.service import ServeConfig, Server
-    from zraw import free_port
+    from zraw import free_port, wait_until
 
     cfg = ServeConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], state_dir=tmp_path / "state")
     server = Server(cfg, engine_factory=_BuggyEngine)
@@ -327,6 +327,10 @@ def test_an_engine_bug_fails_only_its_session_and_reset_revives_it(tmp_path):
             peer.send("fine", "poses", poses_msg({"cup": [x / 100, 0, 0, 0, 0, 0, 1]}), stamp)
             peer.send("buggy", "poses", poses_msg({"cup": [x, 0, 0, 0, 0, 0, 1]}), stamp)
             peer.wait_output("fine", "metrics", stamp)
+            if i == 0:
+                peer.wait_output("buggy", "metrics", stamp)
+            if i == 1:
+                wait_until(lambda: peer.session_rpc("buggy", "status").state == "failed", 10)
         assert [round(float(cloud_arrays(m)[0][0, 0])) for _, m in peer.of("fine", "particles")] == [0, 5, 0]
         assert len(peer.of("buggy", "particles")) == 1               # nothing after the crash
         status = peer.session_rpc("buggy", "status")

@@ -153,6 +153,8 @@ class Server:
     def _report_reject(self, session_id, stream, exc) -> None:
         key = (session_id, stream, getattr(exc, "cause", type(exc).__name__))
         now = time.monotonic()
+        if len(self._rejects) > 4096 and key not in self._rejects:
+            self._rejects.clear()            # many distinct bogus keys: forget, do not grow
         entry = self._rejects.setdefault(key, [0, -1e9])
         entry[0] += 1
         if now - entry[1] >= _REJECT_LOG_EVERY_S:

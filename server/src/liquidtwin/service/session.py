@@ -199,7 +199,11 @@ class ServedSession:
     def status(self, server_id: str) -> SessionStatus:
         """The session's SessionStatus now."""
         with self.lock:
-            vols = self.engine.volumes() if not self.closed else {}
+            try:
+                vols = self.engine.volumes() if not self.closed and not self.failed else {}
+            except Exception:  # noqa: BLE001 - a status must answer even when the engine cannot
+                _log.exception("session %s: volumes for its status failed", self.id)
+                vols = {}
             st = SessionStatus(session_id=self.id, state=self.state, spec=self.spec,
                                sim_time_s=self.engine.sim_time_s, particles=self.engine.n_particles,
                                volumes=container_volumes(vols), log_path=str(self.log.path),
