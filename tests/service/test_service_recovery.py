@@ -41,7 +41,7 @@ def test_kill9_restart_restores_the_session_and_loses_no_logged_input(servers):
     sent = {"poses": [], "mask": []}
     for i in range(20):                                   # lockstep: each frame answered
         peer.wait_output(sid, "particles", _frame(peer, sid, i, sent, mask))
-    time.sleep(0.5)                                       # a checkpoint after frame 19
+    time.sleep(0.8)                                       # a checkpoint after frame 19 (every 0.2 s)
     for i in range(20, 30):                               # then frames in flight at the kill
         _frame(peer, sid, i, sent, mask)
         time.sleep(0.005)
