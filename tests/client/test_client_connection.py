@@ -74,6 +74,13 @@ def test_no_server_is_a_timeout_that_says_what_to_start():
     assert "liquidtwin serve" in str(err.value)
 
 
+def test_bad_endpoints_are_value_errors():
+    with pytest.raises(ValueError, match="like 'tcp/127.0.0.1:7447'"):
+        Client(connect="localhost")
+    with pytest.raises(ValueError, match="cannot open a Zenoh session to foo/bar"):
+        Client(connect="foo/bar")
+
+
 def test_a_slow_create_times_out_with_the_rpc_named(fake_server, client):
     fake_server.create_delay_s = 1.5
     t = time.monotonic()

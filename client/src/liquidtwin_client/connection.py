@@ -98,7 +98,11 @@ class Client:
         cfg.insert_json5("connect/endpoints", "[" + ", ".join(f'"{e}"' for e in endpoints) + "]")
         self._seq = itertools.count()
         self._lock = threading.Lock()
-        self.zenoh = zenoh.open(cfg)
+        try:
+            self.zenoh = zenoh.open(cfg)
+        except zenoh.ZError as exc:
+            raise ValueError(f"cannot open a Zenoh session to {', '.join(endpoints)}: {exc}") \
+                from None
         self._token = self.zenoh.liveliness().declare_token(
             self.keys.alive("clients", self.client_id))
         self._closed = False
