@@ -7,7 +7,8 @@ Two pacings:
   show as ``dropped_stale`` in the summary.
 - ``max``: lockstep — each frame goes out as soon as the previous frame's particles came
   back; a frame whose particles do not arrive within ``frame_timeout`` counts as timed
-  out and streaming goes on.
+  out and streaming goes on, unless the session's status says it is closed or failed
+  (then :class:`StreamAborted`).
 
 Per stamp the camera, mask and image samples are published before the poses sample.
 """
