@@ -45,8 +45,11 @@ def load_engine_state(engine, state: dict) -> None:
     if state["spec_sha256"] != spec_digest(engine.spec):
         raise EngineError(BAD_REQUEST, "the checkpoint was written by a session with another spec")
     n = engine._scene.state.x.shape[0]
-    if tuple(state["x"].shape) != (n, 3):
-        raise EngineError(BAD_REQUEST, f"checkpoint has {tuple(state['x'].shape)} particles, the scene {n}")
+    x, ids = state["x"], state["ids"]
+    if x.dim() != 2 or x.shape[1] != 3 or x.shape[0] > n or tuple(ids.shape) != (x.shape[0],) \
+            or (x.shape[0] and (int(ids.min()) < 0 or int(ids.max()) >= n or ids.unique().numel() != ids.numel())):
+        raise EngineError(BAD_REQUEST, f"checkpoint holds {tuple(x.shape)} particles with ids that are not "
+                                       f"distinct labels of the scene's {n}")
     dev = engine._scene.state.x.device
     engine._state = FluidState(state["x"].to(dev), state["v"].to(dev), state["ids"].to(dev),
                                state["poses"].to(dev), float(state["t"]))

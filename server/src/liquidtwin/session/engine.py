@@ -26,6 +26,7 @@ from ..sim import FluidState, collide_move, step
 from ..tracking import Observation, OpenLoop, WarpField
 from ._build import build_scene
 from ._checkpoint import engine_state, load_engine_state
+from ._cull import cull_fallen
 from ._cameras import Cameras, check_pose, tilt_from_upright
 from ._task import control_message, make_controller
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
@@ -142,6 +143,11 @@ class SessionEngine:
         return int(self._state.x.shape[0])
 
     @property
+    def lost_particles(self) -> int:
+        """Particles removed because they fell below every object (see ``_cull``)."""
+        return int(self._scene.state.x.shape[0] - self._state.x.shape[0])
+
+    @property
     def sim_time_s(self) -> float:
         return self._sim_t
 
@@ -186,6 +192,7 @@ class SessionEngine:
             with torch.no_grad():
                 for k in range(steps):
                     state = step(self._scene.model, state, path[k])
+                state, _ = cull_fallen(state, self._scene.model.objects)
         ms = 1e3 * (time.perf_counter() - start)
         self._state = state
         self._sim_t += n * self.dt

@@ -93,10 +93,14 @@ class FluidState:
     t: float = 0.0
 
     def by_id(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """(x, v) reordered so row k is particle k (differentiable)."""
-        inv = torch.empty_like(self.ids)
-        inv[self.ids] = torch.arange(self.ids.numel(), device=self.ids.device)
-        return self.x[inv], self.v[inv]
+        """(x, v) reordered by increasing particle id (row k is particle k while no particle
+        has been removed; see :meth:`subset`) (differentiable)."""
+        order = torch.argsort(self.ids)
+        return self.x[order], self.v[order]
+
+    def subset(self, keep: torch.Tensor) -> "FluidState":
+        """The state without the particles where ``keep`` (N,) bool is False (their ids go)."""
+        return FluidState(self.x[keep], self.v[keep], self.ids[keep], self.poses, self.t)
 
 
 @dataclass(frozen=True, eq=False)
