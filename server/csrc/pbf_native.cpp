@@ -96,28 +96,46 @@ std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius) {
     ks[i] = key[o];
     for (int ax = 0; ax < 3; ++ax) { xs[3 * i + ax] = px[3 * o + ax]; cs[3 * i + ax] = c[3 * o + ax]; }
   }
-  std::vector<int64_t> cell_key, cell_start;
-  for (int64_t i = 0; i < n; ++i)
+  std::vector<int64_t> cell_key, cell_start, cell_of(n);
+  for (int64_t i = 0; i < n; ++i) {
     if (i == 0 || ks[i] != ks[i - 1]) { cell_key.push_back(ks[i]); cell_start.push_back(i); }
+    cell_of[i] = static_cast<int64_t>(cell_key.size()) - 1;
+  }
   cell_start.push_back(n);
-  const double r2 = radius * radius;
-  auto visit = [&](int64_t i, auto&& emit) {
-    for (int dz = -1; dz <= 1; ++dz) {
-      int64_t rz = rank(2, cs[3 * i + 2] + dz); if (rz < 0) continue;
-      for (int dy = -1; dy <= 1; ++dy) {
-        int64_t ry = rank(1, cs[3 * i + 1] + dy); if (ry < 0) continue;
-        for (int dx = -1; dx <= 1; ++dx) {
-          int64_t rx = rank(0, cs[3 * i] + dx); if (rx < 0) continue;
-          int64_t k = rx + u0 * (ry + u1 * rz);
-          auto it = std::lower_bound(cell_key.begin(), cell_key.end(), k);
-          if (it == cell_key.end() || *it != k) continue;
-          int64_t ci = it - cell_key.begin();
-          for (int64_t j = cell_start[ci]; j < cell_start[ci + 1]; ++j) {
-            if (j == i) continue;
-            double ddx = xs[3 * i] - xs[3 * j], ddy = xs[3 * i + 1] - xs[3 * j + 1], ddz = xs[3 * i + 2] - xs[3 * j + 2];
-            if (ddx * ddx + ddy * ddy + ddz * ddz < r2) emit(j);
+  // The 27 neighbouring cells of every occupied cell (index into cell_key, -1 when empty),
+  // looked up once per cell rather than once per particle; dz, dy, dx order as before.
+  const int64_t nc = static_cast<int64_t>(cell_key.size());
+  std::vector<int64_t> nbr(27 * nc);
+  at::parallel_for(0, nc, 64, [&](int64_t b, int64_t e) {
+    for (int64_t ci = b; ci < e; ++ci) {
+      const int64_t i = cell_start[ci];
+      int64_t* out = &nbr[27 * ci];
+      for (int dz = -1; dz <= 1; ++dz) {
+        const int64_t rz = rank(2, cs[3 * i + 2] + dz);
+        for (int dy = -1; dy <= 1; ++dy) {
+          const int64_t ry = rz < 0 ? -1 : rank(1, cs[3 * i + 1] + dy);
+          for (int dx = -1; dx <= 1; ++dx, ++out) {
+            const int64_t rx = ry < 0 ? -1 : rank(0, cs[3 * i] + dx);
+            *out = -1;
+            if (rx < 0) continue;
+            const int64_t k = rx + u0 * (ry + u1 * rz);
+            auto it = std::lower_bound(cell_key.begin(), cell_key.end(), k);
+            if (it != cell_key.end() && *it == k) *out = it - cell_key.begin();
           }
         }
+      }
+    }
+  });
+  const double r2 = radius * radius;
+  auto visit = [&](int64_t i, auto&& emit) {
+    const int64_t* cells = &nbr[27 * cell_of[i]];
+    for (int o = 0; o < 27; ++o) {
+      const int64_t cj = cells[o];
+      if (cj < 0) continue;
+      for (int64_t j = cell_start[cj]; j < cell_start[cj + 1]; ++j) {
+        if (j == i) continue;
+        double ddx = xs[3 * i] - xs[3 * j], ddy = xs[3 * i + 1] - xs[3 * j + 1], ddz = xs[3 * i + 2] - xs[3 * j + 2];
+        if (ddx * ddx + ddy * ddy + ddz * ddz < r2) emit(j);
       }
     }
   };
