@@ -261,7 +261,7 @@ def test_connect_mode_joins_a_router_with_its_own_prefix(servers, port):
     """``--connect`` (docker-compose's router) with ``--prefix``: the server listens on nothing
     and answers through the router it joined, under its prefix only."""
     import zenoh
-    from zraw import Peer, ServeProc
+    from zraw import Peer, ServeProc, wait_until
 
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"router"')
@@ -275,6 +275,8 @@ def test_connect_mode_joins_a_router_with_its_own_prefix(servers, port):
         assert "ready on connected to tcp/127.0.0.1:" in proc.ready_line and "prefix lab/twin" in proc.ready_line
         peer = Peer(f"tcp/127.0.0.1:{port}", prefix="lab/twin")
         servers.peers.append(peer)
+        # the router needs a moment to propagate the server's queryables
+        wait_until(lambda: peer.query("rpc/list_sessions", b"", timeout=1)[0] == "err", 10)
         assert peer.list_sessions().server_id == "srv-7"
         alive = [str(r.ok.key_expr) for r in hub.liveliness().get("lab/twin/alive/servers/*", timeout=5) if r.ok]
         assert alive == ["lab/twin/alive/servers/srv-7"]

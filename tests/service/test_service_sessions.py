@@ -83,24 +83,24 @@ def test_two_sessions_at_once_equal_each_alone(srv):
             assert not errors, errors
     for key in SCENES:
         alone, together = _results(peer, f"{key}-alone"), _results(peer, f"{key}-together")
-        n = runs[f"{key}-alone"].particles
         assert len(alone[0]) == len(together[0]) == FRAMES
         for stamp, (pos, speed) in alone[0].items():
             pos_t, speed_t = together[0][stamp]
-            assert pos.shape == (n, 3)
             np.testing.assert_array_equal(pos, pos_t)          # bit for bit
             np.testing.assert_array_equal(speed, speed_t)
         assert alone[1] == together[1]
         np.testing.assert_array_equal(alone[2], together[2])
-        moved = np.abs(alone[0][T0 + (FRAMES - 1) * DT_NS][0] - alone[0][T0][0]).max()
+        moved = np.abs(alone[0][T0 + (FRAMES - 1) * DT_NS][0].mean(0) - alone[0][T0][0].mean(0)).max()
         assert moved > 1e-3                                    # the runs did something
     # nothing crossed: each session's outputs carry its id, its own particle count and containers
     assert runs["a-alone"].particles != runs["b-alone"].particles
     for sid, st in runs.items():
-        for stream, h, m in peer.outputs[sid]:
+        count = {h.stamp_ns: m.particles for h, m in peer.of(sid, "metrics")}
+        assert 0 < min(count.values()) <= max(count.values()) <= st.particles   # liquid spilled over the rim may
+        for stream, h, m in peer.outputs[sid]:                                  # fall away and be culled
             assert h.session_id == sid
             if stream == "particles":
-                assert len(m.data) == 16 * st.particles
+                assert len(m.data) == 16 * count[h.stamp_ns]
             if stream == "volumes":
                 assert [c.name for c in m.containers] == [v.name for v in st.volumes]
     assert len(peer.of("a-together", "overlay")) == (FRAMES + 1) // 2 and not peer.of("b-together", "overlay")

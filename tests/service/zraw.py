@@ -183,6 +183,9 @@ class Peer:
                 self.outputs[sid].append((stream, h, msg))
                 self.cv.notify_all()
         self._subs.append(self.z.declare_subscriber(f"{self.prefix}/{sid}/out/*", on))
+        # Zenoh drops a put that no known subscriber wants: let the declaration reach the
+        # server before the first frame (there is no acknowledgement to wait for)
+        time.sleep(0.3)
 
     def wait_output(self, sid: str, stream: str, stamp_ns: int, timeout: float = 10.0):
         """The ``stream`` output of ``sid`` answering the frame at ``stamp_ns``."""

@@ -14,6 +14,7 @@ import logging
 import threading
 import time
 
+import zenoh
 from liquidtwin_proto import Header, PROTOCOL_VERSION, SessionStatus, Task, encode_attachment, now_ns
 
 from ..session import EngineError
@@ -62,7 +63,11 @@ class ServedSession:
         cams = {n: engine.camera_size(n) for n in engine.camera_names}
         self.checker = InputChecker(engine.object_names, cams, config.max_payload_bytes)
         self.log = SessionLog(directory, spec)
-        self._pubs = {s: zsession.declare_publisher(keys.stream_out(session_id, s)) for s in OUTPUTS}
+        # BLOCK: under CPU load Zenoh's default (DROP) loses outputs while its queue waits for the
+        # transmit thread; blocking only happens when a link's queue is full (a stalled peer)
+        self._pubs = {s: zsession.declare_publisher(keys.stream_out(session_id, s),
+                                                    congestion_control=zenoh.CongestionControl.BLOCK)
+                      for s in OUTPUTS}
         self.last_input = time.monotonic()
         self._dirty, self._last_ckpt = not restored, time.monotonic()
         self._stop = threading.Event()
@@ -168,8 +173,8 @@ class ServedSession:
         if hasattr(msg, "header"):
             msg.header.seq = seq
         data = msg.SerializeToString()
-        self._pubs[stream].put(data, attachment=encode_attachment(head))
-        self.log.write(f"/out/{stream}", msg, now_ns(), stamp, seq, data=data)
+        self.log.write(f"/out/{stream}", msg, now_ns(), stamp, seq, data=data)    # logged first: a kill
+        self._pubs[stream].put(data, attachment=encode_attachment(head))           # never loses a sent output
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint(self) -> None:
