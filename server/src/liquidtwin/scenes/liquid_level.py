@@ -47,6 +47,14 @@ def held(model: FluidModel, state: FluidState, index: int,
     the nearest surface along the SDF gradient: towards the cavity from the inner wall, away
     from it from the outer wall.
     """
+    keep, probe, local = held_probes(model, state, index, obj)
+    return keep & obj.in_cavity(probe), local
+
+
+def held_probes(model: FluidModel, state: FluidState, index: int,
+                obj: ObjectModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first half of :func:`held`: (keep (N,) bool, probe points (N, 3), object-frame
+    positions (N, 3)), m; a particle is held when ``keep`` and its probe is in the cavity."""
     pose = state.poses[index].detach().to(torch.float64)
     R = rotation(pose)
     local = (state.x.detach().to(torch.float64).cpu().numpy() - pose[:3].numpy()) @ R
@@ -62,7 +70,7 @@ def held(model: FluidModel, state: FluidState, index: int,
     rim = obj.rim_height
     keep = probe[:, 1] <= rim + model.spacing
     probe[:, 1] = np.minimum(probe[:, 1], rim - 1e-9)
-    return keep & obj.in_cavity(probe), local
+    return keep, probe, local
 
 
 def nearest_spacing(x: np.ndarray, spacing: float) -> float:

@@ -27,6 +27,7 @@ from ..tracking import Observation, OpenLoop, WarpField
 from ._build import build_scene
 from ._checkpoint import engine_state, load_engine_state
 from ._cull import cull_fallen
+from ._volumes import CavityVoxels, held_count_fast
 from ._cameras import Cameras, check_pose, tilt_from_upright
 from ._task import control_message, make_controller
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
@@ -64,17 +65,9 @@ class CorrectionResult:
 
 
 def held_count(model, state, index: int, obj) -> int:
-    """Particles container ``index`` holds (:func:`liquidtwin.scenes.liquid_level.held`).
-
-    Works around a bug in ``geometry._rays.column_hits``: when no cavity face lies over any
-    particle (all liquid far to the side of the container) it fails concatenating nothing,
-    where the answer is simply "none inside"."""
-    try:
-        return int(held(model, state, index, obj)[0].sum())
-    except ValueError as exc:
-        if "need at least one array to concatenate" in str(exc):
-            return 0
-        raise
+    """Particles container ``index`` holds (:func:`liquidtwin.scenes.liquid_level.held`),
+    exact (one ray per particle); sessions use the voxelised :class:`CavityVoxels`."""
+    return int(held(model, state, index, obj)[0].sum())
 
 
 def _tracker(spec: pb.SessionSpec):
@@ -119,6 +112,7 @@ class SessionEngine:
         self.container_names = scene.containers
         self.dt = float(scene.model.dt)
         self._capacity = {n: scene.objects[scene.names.index(n)].capacity_ml for n in scene.containers}
+        self._voxels = {n: CavityVoxels(scene.objects[scene.names.index(n)]) for n in scene.containers}
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -254,8 +248,8 @@ class SessionEngine:
             out = {}
             for name in self.container_names:
                 k = self.object_names.index(name)
-                out[name] = held_count(self._scene.model, self._state, k, self._scene.objects[k]) \
-                    * self._scene.ml_per_particle
+                out[name] = held_count_fast(self._scene.model, self._state, k, self._scene.objects[k],
+                                            self._voxels[name]) * self._scene.ml_per_particle
             self._volumes = (self._frames, out)
         return dict(self._volumes[1])
 
