@@ -13,6 +13,13 @@ PARTICLE_COLOR = (40, 120, 230)  # RGB, 0-255
 _MAX_PAUSE_S = 1.0  # longest wait between two frames during playback, s
 
 
+def page_url(host: str, port: int) -> str:
+    """Address a browser opens for a page served on ``host``:``port`` (wildcards → loopback)."""
+    host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+    host = f"[{host}]" if ":" in host else host
+    return f"http://{host}:{port}"
+
+
 class PlaybackViewer:
     """Serves one point-cloud series on a viser page, with frame slider and playback.
 
@@ -56,9 +63,7 @@ class PlaybackViewer:
     @property
     def url(self) -> str:
         """Address to open in a browser."""
-        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
-        host = f"[{host}]" if ":" in host else host
-        return f"http://{host}:{self.port}"
+        return page_url(self.host, self.port)
 
     def show(self, index: int) -> None:
         """Draw frame ``index`` of the series."""

@@ -14,6 +14,7 @@ import time
 import numpy as np
 import viser
 
+from .app import page_url
 from .buffers import SessionSnapshot
 from .colormap import auto_vmax, pose_to_viser, speed_colors
 from .panel import NO_SESSION, Panel, status_line
@@ -77,9 +78,7 @@ class LiveViewer:
     @property
     def url(self) -> str:
         """Address to open in a browser."""
-        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
-        host = f"[{host}]" if ":" in host else host
-        return f"http://{host}:{self.port}"
+        return page_url(self.host, self.port)
 
     @property
     def selected(self) -> str | None:
