@@ -214,7 +214,6 @@ def test_tasks_and_control(rec):
 
 
 @pytest.mark.parametrize("change,code", [
-    (lambda s: setattr(s, "tracking", pb.MAP_FILTER), pb.Error.INFEASIBLE),
     (lambda s: setattr(s, "tracking", pb.SPNETS_PERCEPTION), pb.Error.INFEASIBLE),
     (lambda s: s.scene.fills[0].__setattr__("container", "table"), pb.Error.BAD_REQUEST),
     (lambda s: s.scene.fills[0].__setattr__("volume_ml", 5000.0), pb.Error.INFEASIBLE),

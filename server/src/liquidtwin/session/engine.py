@@ -23,7 +23,7 @@ from ..camera.render import coverage
 from ..recordings._interp import interpolate_poses
 from ..scenes.liquid_level import held
 from ..sim import FluidState, collide_move, step
-from ..tracking import Observation, OpenLoop, WarpField
+from ..tracking import MapFilter, Observation, OpenLoop, WarpField
 from ._build import build_scene
 from ._checkpoint import engine_state, load_engine_state
 from ._cull import cull_fallen
@@ -79,9 +79,11 @@ def _tracker(spec: pb.SessionSpec):
         return OpenLoop()
     if mode in (pb.TRACKING_MODE_UNSPECIFIED, pb.WARP_FIELD):
         return WarpField(gain) if gain > 0 else WarpField()
-    if mode in (pb.MAP_FILTER, pb.SPNETS_PERCEPTION):
+    if mode == pb.MAP_FILTER:
+        return MapFilter()
+    if mode == pb.SPNETS_PERCEPTION:
         raise EngineError(INFEASIBLE, f"tracking mode {pb.TrackingMode.Name(mode)} is not available in this "
-                                      f"version; use WARP_FIELD or OPEN_LOOP")
+                                      f"version; use WARP_FIELD, MAP_FILTER or OPEN_LOOP")
     raise EngineError(BAD_REQUEST, f"unknown tracking mode {mode}")
 
 

@@ -32,13 +32,13 @@ pulls them over; occluded particles are neither pulled nor smoothed with (SPEC �
 
 from __future__ import annotations
 
-import functools
 import math
 
 import torch
 
 from ..camera import Camera
 from ..sim import convsp, find_neighbors
+from ._fft import correlate
 from .base import Correction, Observation, Tracker
 
 #: Squared-exponential length scale and cut-off at the reference resolution, px (thesis §7.2.2).
@@ -92,44 +92,10 @@ def warp_image(weights: torch.Tensor, length_px: float, cutoff_px: float) -> tor
       length_px, cutoff_px: kernel length scale and cut-off, px.
     Returns:
       (2, H, W) (u, v) components, weights' dtype and device. Computed as a zero-padded FFT
-      cross-correlation, O(HW log HW) whatever the number of liquid pixels.
+      cross-correlation (:func:`._fft.correlate`), O(HW log HW) whatever the number of liquid
+      pixels.
     """
-    if weights.dim() != 2:
-        raise ValueError(f"weights must be an (H, W) image, got shape {tuple(weights.shape)}")
-    H, W = weights.shape
-    R = int(math.floor(cutoff_px))
-    # enough zero padding that no offset wraps onto the image, rounded up to a 5-smooth size
-    Hp, Wp = _fast_size(H + R), _fast_size(W + R)
-    spectrum = _kernel_spectrum(length_px, cutoff_px, Hp, Wp, weights.dtype, str(weights.device))
-    g = torch.fft.rfft2(weights, s=(Hp, Wp))
-    return torch.fft.irfft2(spectrum * g, s=(Hp, Wp))[:, :H, :W]
-
-
-def _fast_size(n: int) -> int:
-    """Smallest m ≥ n whose prime factors are 2, 3 and 5 (fast FFT lengths)."""
-    m = n
-    while True:
-        k = m
-        for p in (2, 3, 5):
-            while k % p == 0:
-                k //= p
-        if k == 1:
-            return m
-        m += 1
-
-
-@functools.lru_cache(maxsize=8)
-def _kernel_spectrum(length_px: float, cutoff_px: float, Hp: int, Wp: int, dtype, device: str):
-    """conj(K̂) of the kernel laid out on an Hp × Wp torus (offset d at index d mod size): the
-    correlation Σ_d K(d) g(p + d) is then irfft(conj(K̂) · ĝ) (K real). Cached: a session asks
-    for the same kernel and image size every frame."""
-    k = warp_kernel(length_px, cutoff_px, dtype, device)
-    R = (k.shape[-1] - 1) // 2
-    kk = torch.zeros(2, Hp, Wp, dtype=dtype, device=device)
-    idx_y = torch.arange(-R, R + 1, device=device) % Hp
-    idx_x = torch.arange(-R, R + 1, device=device) % Wp
-    kk[:, idx_y[:, None], idx_x[None, :]] = k
-    return torch.conj(torch.fft.rfft2(kk))
+    return correlate(weights, warp_kernel, float(length_px), float(cutoff_px))
 
 
 def sample_bilinear(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
