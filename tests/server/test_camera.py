@@ -477,3 +477,29 @@ def test_bench_camera_records(tmp_path):
         assert r["particles"] == 8000 and 0 < r["visible_particles"] < 8000
         assert r["ms"] > 0 and r["peak_mem_bytes"] > 0 and r["commit"] and r["date"]
     assert not (tmp_path / "no").exists()
+
+
+def test_box_reach_test_agrees_with_dense_sampling():
+    """The early exit of the occlusion march: a segment 'reaches' an object's grid box exactly
+    when some point along it lies in the (rotated, shifted) box — checked by sampling."""
+    from liquidtwin.camera.occlusion import _frames, _reaches_a_box
+    from liquidtwin.sim import SDFGrid
+
+    g = torch.Generator().manual_seed(3)
+    values = torch.rand(5, 4, 6, generator=g, dtype=torch.float64) - 0.5
+    grid = SDFGrid(values, torch.tensor([-0.02, 0.0, -0.03], dtype=torch.float64), 0.01, 0.003, "box")
+    q = torch.tensor([0.3, 0.1, 0.2, 0.2], dtype=torch.float64)
+    pose = torch.cat([torch.tensor([0.05, -0.02, 0.01], dtype=torch.float64), q / q.norm()])[None]
+    frames = _frames([grid], pose)
+    start = torch.rand(400, 3, generator=g, dtype=torch.float64) * 0.12 - 0.06
+    d = torch.randn(400, 3, generator=g, dtype=torch.float64)
+    d = d / d.norm(dim=1, keepdim=True)
+    length = torch.rand(400, generator=g, dtype=torch.float64) * 0.3
+    got = _reaches_a_box(start, d, length, frames)
+    R, t, lo, hi = frames[0]
+    tau = torch.linspace(0, 1, 4001, dtype=torch.float64)
+    pts = start[:, None] + (tau[None, :, None] * length[:, None, None]) * d[:, None]
+    local = (pts - t) @ R
+    inside = ((local >= lo) & (local <= hi)).all(-1).any(-1)
+    assert got.sum() > 20 and (~got).sum() > 20
+    assert torch.equal(got, inside)

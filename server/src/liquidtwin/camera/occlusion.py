@@ -59,6 +59,21 @@ def _lower_bound_sdf(q: torch.Tensor, frames, objects) -> torch.Tensor:
     return out
 
 
+def _reaches_a_box(q: torch.Tensor, d: torch.Tensor, remaining: torch.Tensor, frames) -> torch.Tensor:
+    """(M,) bool: does the segment q + τ·d, 0 ≤ τ ≤ remaining, meet any object's SDF grid box?
+    Object material lies inside those boxes, so a segment that meets none cannot be blocked
+    (slab test in each object's frame; q (M, 3), unit d (M, 3), remaining (M,))."""
+    out = torch.zeros(len(q), dtype=torch.bool, device=q.device)
+    for R, t, lo, hi in frames:
+        p, u = (q - t) @ R, d @ R
+        inv = 1.0 / torch.where(u.abs() < 1e-12, torch.full_like(u, 1e-12), u)
+        a, b = (lo - p) * inv, (hi - p) * inv
+        enter = torch.minimum(a, b).amax(dim=1).clamp(min=0.0)
+        leave = torch.maximum(a, b).amin(dim=1).clamp(max=remaining)
+        out |= enter <= leave
+    return out
+
+
 def _default_step(objects) -> float:
     return min(float(o.thickness) for o in objects) / 4.0
 
@@ -112,7 +127,10 @@ def segment_blocked(start: torch.Tensor, end: torch.Tensor, objects, poses: torc
             hit = f < -tol
             blocked[idx[hit]] = True
             s = s + f.clamp(min=step)
-            keep = (~hit & (s < rays[:, 6])).nonzero().squeeze(1)
+            # rays whose rest meets no object's box are free: stop marching them
+            free = ~_reaches_a_box(rays[:, :3] + s[:, None] * rays[:, 3:6], rays[:, 3:6],
+                                   (rays[:, 6] - s).clamp(min=0.0), frames)
+            keep = (~hit & ~free & (s < rays[:, 6])).nonzero().squeeze(1)
             idx, s, rays = idx[keep], s[keep], rays[keep]
     return blocked
 
