@@ -119,7 +119,7 @@ def test_no_liquid_or_liquid_out_of_reach_moves_nothing():
     far[:, :20] = True                                     # more than r_c (50 px here) from every particle
     uv = cam.project(ball)[0]
     assert float(uv[:, 0].min()) - 20 > 50 * 1.05
-    corr = MapFilter().correct(_observe(cam, ball, far))
+    corr = MapFilter(velocity_share=0.5).correct(_observe(cam, ball, far))
     assert bool((corr.dx == 0).all()) and bool((corr.dv == 0).all())
 
 
@@ -132,16 +132,95 @@ def test_occluded_particles_are_untouched():
     obs = _observe(cam, ball, mask)
     hidden = torch.rand(len(ball), generator=torch.Generator().manual_seed(2)) < 0.4
     part = Observation(**{**obs.__dict__, "visible": obs.visible & ~hidden})
-    corr = MapFilter().correct(part)
+    corr = MapFilter(CELL, velocity_share=0.5).correct(part)
     assert bool((corr.dx[hidden] == 0).all()) and bool((corr.dv[hidden] == 0).all())
     moved = corr.dx[~hidden].norm(dim=1) > 0
     assert float(moved.float().mean()) > 0.5                 # most visible ones jump toward the liquid
     assert float(corr.dx[~hidden][moved][:, 0].mean()) > 0
     steps = corr.dx[~hidden].abs()
     assert bool(((steps < 1e-6) | ((steps - CELL).abs() < 1e-6)).all())     # whole cells only
+    torch.testing.assert_close(corr.dv, corr.dx * (0.5 * 30))                  # share × dx / camera period
 
 
 def test_rejects_bad_settings():
     for bad in (dict(cell_m=0.0), dict(cell_m=float("nan")), dict(velocity_share=-1.0), dict(length_px=-2.0)):
         with pytest.raises(ValueError):
             MapFilter(**bad)
+
+
+# ---------------------------------------------------------------- in the session engine
+def test_golden_pour_with_the_map_filter_keeps_its_particles_and_tracks_like_open_loop():
+    import test_session_engine as S
+    from liquidtwin.recordings import read_recording
+    from liquidtwin_proto import liquidtwin_pb2 as pb
+
+    rec = read_recording(S.GOLDEN, images=False)
+    open_iou, _, open_ms = S._replay(S._engine(rec, pb.OPEN_LOOP), rec)
+    eng = S._engine(rec, pb.MAP_FILTER)
+    assert isinstance(eng._tracker, MapFilter)
+    map_iou, map_vol, map_ms = S._replay(eng, rec)
+    print(f"\nmean IOU over {len(open_iou)} liquid frames: open loop {open_iou.mean():.3f}, MAP {map_iou.mean():.3f}; "
+          f"ms/frame open {open_ms.mean():.1f}, MAP {map_ms.mean():.1f}; particles {eng.n_particles}, "
+          f"lost {eng.lost_particles}; volume errors {np.round(map_vol, 2)}")
+    assert len(map_iou) == len(open_iou) >= 10
+    # Measured (module doc of map_filter.py): MAP on par with open loop on this pour; chaotic splashes
+    # differ between CPUs, so only "not clearly worse" is asserted.
+    assert map_iou.mean() > open_iou.mean() - 0.03
+    assert eng.lost_particles <= 0.05 * (eng.n_particles + eng.lost_particles)
+    assert map_vol[0] < 1.0 and map_vol[-1] < 2.5 and map_vol.max() < 8.0, map_vol
+
+
+def _bowl_session(tracker_kw: dict):
+    """A bowl of ~1.5k particles seen whole by a 640×480 camera, the mask a disc where its
+    surface projects, tracked by the MAP filter set up with ``tracker_kw``."""
+    import cv2
+    from liquidtwin.session import SessionEngine
+    from liquidtwin_proto import liquidtwin_pb2 as pb
+
+    spec = pb.SessionSpec(tracking=pb.MAP_FILTER)
+    spec.scene.name = "bowl"
+    spec.scene.simulation.h, spec.scene.simulation.dt, spec.scene.simulation.iterations = 0.011, 1 / 60, 4
+    spec.scene.simulation.spacing = 0.55 * 0.011
+    bowl = spec.scene.objects.add(name="bowl", model="bowl", container=True)
+    bowl.initial_pose.extend([0, 0, 0, 0, 0, 0, 1])
+    spec.scene.fills.add(container="bowl", volume_ml=150.0)
+    eng = SessionEngine.create(spec)
+    for k, v in tracker_kw.items():
+        setattr(eng._tracker, k, v)
+    cam = Camera.look_at((0.0, 0.35, 0.30), (0.0, 0.03, 0.0), width=640, height=480, fov_y_deg=45.0)
+    eng.set_camera("cam", K=cam.K.double().numpy(), D=np.zeros(5), width=640, height=480,
+                   pose=cam.pose.double().numpy())
+    ring = torch.tensor([[0.07 * math.cos(a), 0.03, 0.07 * math.sin(a)]
+                         for a in np.linspace(0, 2 * math.pi, 48, endpoint=False)], dtype=torch.float64)
+    uv, _ = cam.project(ring.to(cam.K.dtype))
+    mask = np.zeros((480, 640), np.uint8)
+    cv2.fillPoly(mask, [uv.detach().numpy().round().astype(np.int32)], 1)
+    return eng, mask.astype(bool)
+
+
+def _rock(eng, mask, frames: int) -> tuple[int, float]:
+    """Rock the bowl ±8° at 0.5 Hz for ``frames`` 30 Hz frames, correcting every frame:
+    (particles left in the session, fastest particle m/s)."""
+    fastest = 0.0
+    for i in range(frames):
+        a = math.radians(8.0) * math.sin(math.pi * i / 30)
+        eng.advance(i / 30, {"bowl": [0, 0, 0, math.sin(a / 2), 0, 0, math.cos(a / 2)]})
+        eng.correct("cam", mask)
+        fastest = max(fastest, float(eng.speeds().max()))
+    return eng.n_particles, fastest
+
+
+def test_default_correction_keeps_a_fully_seen_bowl_of_liquid_calm():
+    """With a big liquid body in view the MAP jumps must not inject energy: the defaults keep
+    every particle in a gently rocked bowl, slow; a full velocity share (dv = dx / camera
+    period, the thesis's literal momentum rule) is checked too, so the test tells them apart."""
+    eng, mask = _bowl_session({})
+    n0 = eng.n_particles
+    n, fastest = _rock(eng, mask, 40)
+    print(f"\ndefaults: {n}/{n0} particles kept, fastest {fastest:.2f} m/s")
+    assert n == n0 and fastest < 0.6, (n, n0, fastest)
+    # the thesis's literal settings: 5 mm cells, velocity from the jump, plain argmax
+    old, mask = _bowl_session({"cell_m": 0.005, "velocity_share": 1.0, "min_gain": 0.0})
+    n_old, fastest_old = _rock(old, mask, 40)
+    print(f"thesis settings: {n_old}/{n0} particles kept, fastest {fastest_old:.2f} m/s")
+    assert fastest_old > 1.0 or n_old < n0, (n_old, fastest_old)
