@@ -224,3 +224,17 @@ def test_default_correction_keeps_a_fully_seen_bowl_of_liquid_calm():
     n_old, fastest_old = _rock(old, mask, 40)
     print(f"thesis settings: {n_old}/{n0} particles kept, fastest {fastest_old:.2f} m/s")
     assert fastest_old > 1.0 or n_old < n0, (n_old, fastest_old)
+
+
+def test_near_ties_go_to_the_shortest_move():
+    offs = hypothesis_offsets(1.0)
+    corner = int(((offs == torch.tensor([1.0, 1.0, 1.0])).all(1)).nonzero())
+    face = int(((offs == torch.tensor([1.0, 0.0, 0.0])).all(1)).nonzero())
+    score = torch.zeros(3, 27, dtype=torch.float64)
+    score[:, corner], score[:, face] = 0.5004, 0.5
+    score[1, corner] = 0.51                   # a clear winner
+    score[2] = 0.2                            # all equal: stay
+    score[2, 5] = -math.inf
+    got = MapFilter(min_gain=1e-3).choose(score).tolist()
+    assert got == [face, corner, 13]
+    assert MapFilter(min_gain=0.0).choose(score).tolist() == [corner, corner, 13]
