@@ -1,0 +1,253 @@
+"""Expected liquid masks of a container for a set of candidate volumes (SPEC §5, thesis 5.1.3).
+
+For a container (:class:`~liquidtwin.geometry.ObjectModel`) at a pose and a camera:
+
+- The liquid holding v ml is the cavity below the **world-horizontal** plane y = h(v).
+  :class:`LevelTable` gives h(v): upright containers use the exact bisection of
+  :meth:`ObjectModel.height_for_volume` (precomputed once per bin); a tilted one uses the
+  volume of the cavity below the tilted plane sampled at ``_TILT_LEVELS`` levels and
+  inverted by linear interpolation (the clipped-volume function is smooth, so the error is
+  well below a bin of a few ml). Volumes above what the tilted cavity holds below its rim
+  plane are placed as if the rim plane were closed (spilling is not modelled).
+- Rays go from the camera centre through the **centres of stride × stride pixel blocks**
+  (the image is downsampled by the integer ``stride``, the block (i, j) covers pixels
+  [i·s, (i+1)·s) × [j·s, (j+1)·s); its ray passes through (u, v) = (j·s + (s−1)/2,
+  i·s + (s−1)/2)). Lens distortion is removed with ``cv2.undistortPoints``.
+- Every crossing of each ray with the cavity surface is found once per frame (brute-force
+  Möller–Trumbore in NumPy, rays culled by the cavity's bounding box); the ray is inside the
+  cavity between crossings 1–2, 3–4, …. Intersecting these intervals with the half-line
+  below each candidate plane gives, for all K volumes at once, where the ray enters the
+  liquid body (the cavity clipped at the surface plane).
+- A block is **interior** when its ray enters the cavity before it hits any occluder (the
+  container's own solid mesh — walls are opaque, as in the generator's masks — and any
+  extra ``occluders``), and **expected liquid** for volume v when it enters the liquid body
+  of v before it hits an occluder.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import trimesh
+
+from ..geometry.volume import ML_PER_M3
+
+_TILT_LEVELS = 129
+_UPRIGHT_COS = math.cos(1e-4)        # tilts below 0.1 mrad count as upright
+_EPS = 1e-7                          # m, ties between the cavity and the solid surfaces
+_MAX_PAIRS = 1 << 21
+
+
+def quat_matrix(q) -> np.ndarray:
+    """Unit quaternion (4,) (x, y, z, w) → rotation matrix (3, 3) (normalised first)."""
+    x, y, z, w = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _check_pose(pose) -> np.ndarray:
+    pose = np.asarray(pose, float).reshape(-1)
+    if pose.shape != (7,) or not np.isfinite(pose).all():
+        raise ValueError(f"pose must be a finite (7,) (tx ty tz qx qy qz qw), got {pose!r}")
+    if abs(np.linalg.norm(pose[3:]) - 1) > 1e-2:
+        raise ValueError(f"pose quaternion must be unit length, its norm is {np.linalg.norm(pose[3:]):.4g}")
+    return pose
+
+
+def _plane_volume(cavity: trimesh.Trimesh, n: np.ndarray, s: float) -> float:
+    """Volume (m³) of the closed ``cavity`` on the side n·p < s of the plane n·p = s."""
+    apex = s * n
+    v, f, _ = trimesh.intersections.slice_faces_plane(
+        np.asarray(cavity.vertices, float), np.asarray(cavity.faces), plane_normal=-n,
+        plane_origin=apex)
+    if len(f) == 0:
+        return 0.0
+    tri = np.asarray(v)[np.asarray(f)] - apex
+    return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
+
+
+@dataclass(frozen=True, eq=False)
+class LevelTable:
+    """Liquid surface heights of one container for fixed candidate volumes.
+
+    Attributes:
+      model: the container.
+      volumes_ml: (K,) candidate volumes, ml, increasing, in [0, capacity].
+      upright: (K,) object-frame surface heights y (m) when upright (exact bisection).
+    """
+
+    model: object
+    volumes_ml: np.ndarray
+    upright: np.ndarray
+
+    @classmethod
+    def create(cls, model, volumes_ml) -> "LevelTable":
+        vols = np.asarray(volumes_ml, float).reshape(-1)
+        if len(vols) == 0 or not np.isfinite(vols).all():
+            raise ValueError("volumes_ml must be a non-empty list of finite volumes in ml")
+        if (np.diff(vols) <= 0).any():
+            raise ValueError("volumes_ml must be strictly increasing")
+        if not model.is_container:
+            raise ValueError(f"{model.name} is not a container: it has no cavity")
+        if vols[0] < 0 or vols[-1] > model.capacity_ml * (1 + 1e-9):
+            raise ValueError(f"{model.name} holds 0 … {model.capacity_ml:.1f} ml; candidate "
+                             f"volumes span {vols[0]:.1f} … {vols[-1]:.1f} ml")
+        return cls(model, vols, np.array([model.height_for_volume(v) for v in vols]))
+
+    def heights(self, pose) -> np.ndarray:
+        """(K,) world heights y (m) of the flat surface for each volume, container at ``pose`` (7,)."""
+        pose = _check_pose(pose)
+        n = quat_matrix(pose[3:])[1]                  # world up in the object frame
+        if n[1] >= _UPRIGHT_COS:
+            return self.upright + pose[1]
+        cav = self.model.cavity
+        proj = np.asarray(cav.vertices, float) @ n
+        levels = np.linspace(proj.min(), proj.max(), _TILT_LEVELS)
+        vol = np.maximum.accumulate([_plane_volume(cav, n, s) * ML_PER_M3 for s in levels])
+        return np.interp(self.volumes_ml, vol, levels) + pose[1]
+
+
+def pixel_rays(camera, stride: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """Rays through the block centres of ``camera``'s image downsampled by ``stride``.
+
+    Returns:
+      (origin (3,) m world camera centre, directions (h·w, 3) unit world vectors in row-major
+      block order, (h, w) = (H // stride, W // stride)).
+    """
+    stride = int(stride)
+    if stride < 1:
+        raise ValueError(f"stride must be a whole number of pixels >= 1, got {stride}")
+    h, w = camera.height // stride, camera.width // stride
+    if h == 0 or w == 0:
+        raise ValueError(f"stride {stride} px is larger than the {camera.width}x{camera.height} image")
+    jj, ii = np.meshgrid(np.arange(w), np.arange(h))
+    uv = np.stack([jj * stride + (stride - 1) / 2, ii * stride + (stride - 1) / 2], -1)
+    uv = uv.reshape(-1, 1, 2).astype(np.float64)
+    K = camera.K.numpy()
+    D = camera.distortion.detach().double().numpy()
+    ab = cv2.undistortPoints(uv, K, D).reshape(-1, 2)
+    d = np.concatenate([ab, np.ones((len(ab), 1))], 1)
+    d = d @ camera.rotation.detach().double().numpy().T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return camera.position.detach().double().numpy(), d, (h, w)
+
+
+def _slab(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(R,) bool: rays from o (3,) along d (R, 3) that meet the box [lo, hi]."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        t1, t2 = (lo - o) * inv, (hi - o) * inv
+    tmin = np.nan_to_num(np.minimum(t1, t2), nan=-np.inf).max(1)
+    tmax = np.nan_to_num(np.maximum(t1, t2), nan=np.inf).min(1)
+    return (tmax >= np.maximum(tmin, 0.0))
+
+
+def crossings(o: np.ndarray, d: np.ndarray, mesh: trimesh.Trimesh, pose) -> np.ndarray:
+    """Every crossing of rays with a mesh placed at ``pose``.
+
+    Args:
+      o: (3,) world ray origin, m. d: (R, 3) unit world directions. pose: (7,) object → world.
+    Returns:
+      (R, M) distances along the rays, m, sorted, padded with inf (M = most crossings of a ray).
+      Coincident crossings (a ray through an edge) are counted once.
+    """
+    pose = _check_pose(pose)
+    Rm = quat_matrix(pose[3:])
+    ol, dl = (o - pose[:3]) @ Rm, d @ Rm                       # object frame
+    b = np.asarray(mesh.bounds, float)
+    rays = np.nonzero(_slab(ol, dl, b[0] - 1e-6, b[1] + 1e-6))[0]
+    tri = np.asarray(mesh.vertices, float)[np.asarray(mesh.faces)]
+    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    tv = ol - a
+    qv = np.cross(tv, e1)
+    hits = []
+    step = max(1, _MAX_PAIRS // max(1, len(tri)))
+    for s in range(0, len(rays), step):
+        dd = dl[rays[s:s + step], None, :]
+        p = np.cross(dd, e2)
+        det = (p * e1).sum(-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = (tv * p).sum(-1) / det
+            v = (dd * qv).sum(-1) / det
+            t = np.broadcast_to((e2 * qv).sum(-1), det.shape) / det
+        ok = (np.abs(det) > 1e-18) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+        hits.append(np.sort(np.where(ok, t, np.inf), 1))
+    out = np.full((len(d), 1), np.inf)
+    if not hits:
+        return out
+    m = max(int(np.isfinite(h).sum(1).max()) for h in hits)
+    if m == 0:
+        return out
+    t = np.concatenate([h[:, :m] for h in hits])
+    dup = np.zeros_like(t, bool)
+    with np.errstate(invalid="ignore"):
+        dup[:, 1:] = np.abs(np.diff(t, axis=1)) < 1e-9
+    t = np.sort(np.where(dup, np.inf, t), 1)
+    out = np.full((len(d), t.shape[1]), np.inf)
+    out[rays] = t
+    return out
+
+
+@dataclass(frozen=True)
+class ExpectedMasks:
+    """Expected liquid masks on the downsampled image grid.
+
+    Attributes:
+      liquid: (K, h, w) bool, block expected to show liquid for each candidate volume.
+      interior: (h, w) bool, blocks whose ray sees the cavity (only these are scored).
+      heights: (K,) world surface heights y, m.
+      stride: downsampling factor, px.
+    """
+
+    liquid: np.ndarray
+    interior: np.ndarray
+    heights: np.ndarray
+    stride: int
+
+
+def expected_masks(table: LevelTable, pose, camera, stride: int = 4,
+                   occluders=(), opaque: bool = True) -> ExpectedMasks:
+    """Expected liquid masks of ``table.model`` at ``pose`` (7,) for each of ``table.volumes_ml``.
+
+    Args:
+      camera: :class:`~liquidtwin.camera.Camera`. stride: downsampling factor (px, ≥ 1).
+      occluders: extra (trimesh.Trimesh solid, pose (7,)) pairs that hide the container.
+      opaque: the container's own walls hide what lies behind them (False: a glass container).
+    """
+    model = table.model
+    o, d, (h, w) = pixel_rays(camera, stride)
+    heights = table.heights(pose)
+    cav = crossings(o, d, model.cavity, pose)
+    occ = np.full(len(d), np.inf)
+    for mesh, p in (((model.mesh, pose),) if opaque else ()) + tuple(occluders):
+        occ = np.minimum(occ, crossings(o, d, mesh, p)[:, 0])
+    n = cav.shape[1] // 2
+    a, b = cav[:, 0:2 * n:2], cav[:, 1:2 * n:2]              # (R, n) inside intervals
+    interior = np.isfinite(a[:, 0]) & (a[:, 0] < occ - _EPS)
+    dy = d[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tp = (heights[:, None] - o[1]) / dy[None, :]          # (K, R) plane crossing
+    down = (dy < 0)[None, :, None]
+    up = (dy > 0)[None, :, None]
+    lo = np.where(down, np.maximum(a[None], tp[..., None]), a[None])
+    hi = np.where(up, np.minimum(b[None], tp[..., None]), b[None])
+    level = (dy == 0)[None, :, None] & (o[1] >= heights[:, None, None])   # horizontal ray above
+    ok = (lo < hi) & np.isfinite(a)[None] & ~level
+    entry = np.where(ok, lo, np.inf).min(-1)                  # (K, R)
+    liquid = entry < occ[None] - _EPS
+    return ExpectedMasks(liquid.reshape(-1, h, w), interior.reshape(h, w), heights, int(stride))
+
+
+def downsample_mask(mask: np.ndarray, stride: int) -> np.ndarray:
+    """(H, W) bool observed mask → (H // s, W // s) bool: majority of each s × s block."""
+    mask = np.asarray(mask)
+    if mask.ndim != 2:
+        raise ValueError(f"mask must be (H, W), got shape {mask.shape}")
+    s = int(stride)
+    h, w = mask.shape[0] // s, mask.shape[1] // s
+    blocks = mask[:h * s, :w * s].reshape(h, s, w, s).astype(np.float32)
+    return blocks.mean((1, 3)) > 0.5

@@ -1,0 +1,176 @@
+"""Model-based volume estimator (SPEC §5): expected masks against pinhole geometry, tilted
+surface heights against a voxel count, the likelihood, the histogram filter, learned transitions."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from liquidtwin.camera import Camera
+from liquidtwin.geometry import cup
+from liquidtwin.sim.sdf import quat_from_axis_angle
+from liquidtwin.volumes import (LevelTable, VolumeFilter, default_transition, downsample_mask,
+                                expected_masks, learn_transition, log_likelihood, quat_matrix)
+
+UPRIGHT = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+R = 0.035                                    # straight cup: cavity radius (72-gon), m
+
+
+@pytest.fixture(scope="module")
+def straight():
+    return cup(radius=R, bottom_radius=R)
+
+
+@pytest.fixture(scope="module")
+def tapered():
+    return cup()
+
+
+@pytest.fixture(scope="module")
+def oblique(tapered):
+    """Expected masks of the tapered cup seen obliquely, 0 … capacity in 25 bins."""
+    table = LevelTable.create(tapered, np.linspace(0.0, tapered.capacity_ml, 25))
+    cam = Camera.look_at([0.12, 0.25, 0.03], [0, 0.03, 0], width=160, height=120, fov_y_deg=35)
+    return table, cam, expected_masks(table, UPRIGHT, cam, stride=2)
+
+
+def test_expected_masks_grow_with_volume_and_stay_in_the_interior(oblique):
+    table, _, e = oblique
+    assert e.liquid.shape == (25, 60, 80) and e.interior.sum() > 600
+    assert not e.liquid[0].any()                              # empty: nothing expected
+    assert not (e.liquid & ~e.interior).any()
+    for a, b in zip(e.liquid[:-1], e.liquid[1:]):
+        assert not (a & ~b).any()                             # nested masks
+    n = e.liquid.sum((1, 2))
+    assert n[-1] >= 0.95 * e.interior.sum() and (np.diff(n) >= 0).all() and n[-1] > n[5] > 0
+    np.testing.assert_allclose(e.heights, table.upright, atol=0)
+
+
+def test_top_view_liquid_area_is_the_projected_cross_section(straight):
+    """From straight above the liquid is a disc (the 72-gon cross-section A) at depth
+    z = y_cam − h(v): its image area is A·f²/z² px, whatever the volume (> 0)."""
+    y_cam, f = 3.0, 3600.0
+    cam = Camera(200, 200, f, f, 99.5, 99.5, torch.tensor(
+        [0.0, y_cam, 0.0, *quat_from_axis_angle(torch.tensor([1.0, 0, 0]), torch.tensor(math.pi / 2)).tolist()],
+        dtype=torch.float64))
+    assert abs(float(cam.rotation[:, 2] @ torch.tensor([0, -1.0, 0], dtype=torch.float64)) - 1) < 1e-9
+    vols = np.array([0.0, 20.0, 100.0, 250.0, 400.0])
+    table = LevelTable.create(straight, vols)
+    e = expected_masks(table, UPRIGHT, cam, stride=1)
+    area = straight.capacity_ml * 1e-6 / (straight.rim_height - straight.floor_height)
+    px = e.liquid.sum((1, 2))
+    want = area * f**2 / (y_cam - e.heights) ** 2
+    assert px[0] == 0
+    np.testing.assert_allclose(px[1:], want[1:], rtol=0.02)
+    assert px[1:].max() / px[1:].min() < 1.1                 # near constant, grows only with 1/z²
+    assert e.interior.sum() == pytest.approx(area * f**2 / (y_cam - straight.rim_height) ** 2, rel=0.02)
+
+
+def test_side_view_liquid_top_matches_the_projected_height(straight):
+    """A glass cup seen from the side, camera below the floor: in the centre column the
+    highest liquid pixel is the near top edge, v = cy − f (h − y_cam) / (D − r)."""
+    D, y_cam, f = 0.4, 0.0, 600.0
+    cam = Camera.look_at([0.0, y_cam, D], [0.0, y_cam, 0.0], width=41, height=400, fx=f)
+    vols = np.array([50.0, 150.0, 300.0, 400.0])
+    table = LevelTable.create(straight, vols)
+    e = expected_masks(table, UPRIGHT, cam, stride=1, opaque=False)
+    col = e.liquid[:, :, 20]                                  # centre column (u = cx)
+    for k, h in enumerate(e.heights):
+        rows = np.nonzero(col[k])[0]
+        v_top = cam.cy - f * (h - y_cam) / (D - R)
+        v_floor = cam.cy - f * (straight.floor_height - y_cam) / (D - R)
+        assert abs(rows.min() - v_top) <= 1.0, (k, rows.min(), v_top)
+        assert abs(rows.max() - v_floor) <= 1.0
+    opaque = expected_masks(table, UPRIGHT, cam, stride=1)    # opaque walls hide it all
+    assert not opaque.liquid.any() and not opaque.interior.any()
+
+
+def test_tilted_surface_height_holds_the_volume(tapered):
+    """Heights for a 0.35 rad tilt: the voxel count of cavity points below the world plane."""
+    q = quat_from_axis_angle(torch.tensor([0.0, 0, 1]), torch.tensor(0.35)).numpy()
+    pose = np.r_[0.1, 0.2, -0.05, q]
+    vols = np.array([30.0, 120.0, 250.0])
+    h = LevelTable.create(tapered, vols).heights(pose)
+    lo, hi = tapered.cavity.bounds
+    n = 64
+    axes = [lo[i] + (np.arange(n) + 0.5) * (hi[i] - lo[i]) / n for i in range(3)]
+    p = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    p = p[tapered.in_cavity(p)]
+    world_y = p @ quat_matrix(q)[1] + pose[1]
+    cell = np.prod((hi - lo) / n) * 1e6
+    got = np.array([(world_y < hk).sum() * cell for hk in h])
+    np.testing.assert_allclose(got, vols, rtol=0.03)
+    assert not np.allclose(h, LevelTable.create(tapered, vols).upright + pose[1], atol=1e-3)
+
+
+@pytest.mark.parametrize("k_true", [3, 12, 20])
+def test_likelihood_peaks_at_the_true_volume_with_10_percent_flipped(oblique, k_true):
+    _, _, e = oblique
+    rng = np.random.default_rng(k_true)
+    obs = e.liquid[k_true] ^ (rng.random(e.interior.shape) < 0.1)
+    ll = log_likelihood(e.liquid, e.interior, obs)
+    assert int(np.argmax(ll)) == k_true
+    # the table, written out for one block
+    one = np.zeros((2, 1, 1), bool)
+    one[1] = True
+    np.testing.assert_allclose(log_likelihood(one, np.ones((1, 1), bool), np.ones((1, 1), bool)),
+                               np.log([0.2, 0.9]))
+
+
+def test_downsample_is_the_block_majority():
+    m = np.zeros((4, 6), bool)
+    m[0, 0:2] = m[1, 0] = True                # 3 of 4 in block (0, 0)
+    m[2, 4] = m[3, 5] = True                  # 2 of 4 in block (1, 2): not a majority
+    np.testing.assert_array_equal(downsample_mask(m, 2), [[1, 0, 0], [0, 0, 0]])
+
+
+def test_filter_tracks_a_slowly_rising_volume(tapered, oblique):
+    """Truth rises 0 → 300 ml over 40 frames; observations are the expected masks of the true
+    (off-bin) volume with 10 % of the blocks flipped; bins 16 ml apart."""
+    table, cam, e = oblique
+    truth = np.linspace(0.0, 300.0, 40)
+    obs_masks = expected_masks(LevelTable.create(tapered, truth + 1e-9), UPRIGHT, cam, stride=2).liquid
+    filt = VolumeFilter(table.volumes_ml, default_transition(len(table.volumes_ml)))
+    rng = np.random.default_rng(0)
+    b, est = filt.initial(), []
+    for k, m in enumerate(obs_masks):
+        obs = m ^ (rng.random(m.shape) < 0.1)
+        b = filt.update(filt.predict(b) if k else b, log_likelihood(e.liquid, e.interior, obs))
+        est.append(filt.median(b))
+    err = np.abs(np.array(est) - truth)
+    rmse = float(np.sqrt(np.mean(err**2)))
+    print(f"\nHMM on a rising volume: RMSE {rmse:.1f} ml, max {err.max():.1f} ml (bins 16 ml)")
+    assert err.max() <= 24.0 and rmse <= 12.0
+
+
+def test_learn_transition_recovers_a_known_chain():
+    T = np.array([[0.7, 0.3, 0.0, 0.0], [0.1, 0.6, 0.3, 0.0], [0.0, 0.1, 0.6, 0.3],
+                  [0.0, 0.0, 0.2, 0.8]])
+    bins = np.array([0.0, 10.0, 20.0, 30.0])
+    rng = np.random.default_rng(1)
+    series = []
+    for _ in range(40):
+        k, s = 0, []
+        for _ in range(250):
+            s.append(bins[k] + rng.uniform(-4.9, 4.9))        # off-bin volumes, nearest bin k
+            k = rng.choice(4, p=T[k])
+        series.append(np.array(s))
+    learned = learn_transition(series, bins)
+    np.testing.assert_allclose(learned, T, atol=0.03)
+    np.testing.assert_allclose(learned.sum(1), 1.0)
+
+
+def test_bad_input_is_refused(tapered):
+    with pytest.raises(ValueError, match="holds"):
+        LevelTable.create(tapered, [0.0, tapered.capacity_ml + 10])
+    with pytest.raises(ValueError, match="increasing"):
+        LevelTable.create(tapered, [10.0, 5.0])
+    with pytest.raises(ValueError, match="rows must sum"):
+        VolumeFilter(np.array([0.0, 1.0]), np.ones((2, 2)))
+    with pytest.raises(ValueError, match="pose"):
+        LevelTable.create(tapered, [0.0, 5.0]).heights([0.0, np.nan, 0, 0, 0, 0, 1])
+    with pytest.raises(ValueError, match="NaN"):
+        learn_transition([np.array([1.0, np.nan])], [0.0, 1.0])
+    d = default_transition(5)
+    np.testing.assert_allclose(d.sum(1), 1.0)
+    assert d[2, 3] > d[2, 1] and d[2, 0] < 1e-5
