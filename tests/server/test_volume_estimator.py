@@ -10,7 +10,8 @@ from liquidtwin.camera import Camera
 from liquidtwin.geometry import cup
 from liquidtwin.sim.sdf import quat_from_axis_angle
 from liquidtwin.volumes import (LevelTable, VolumeFilter, default_transition, downsample_mask,
-                                expected_masks, learn_transition, log_likelihood, quat_matrix)
+                                estimate_series, expected_masks, learn_transition, log_likelihood,
+                                quat_matrix)
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 R = 0.035                                    # straight cup: cavity radius (72-gon), m
@@ -140,7 +141,7 @@ def test_filter_tracks_a_slowly_rising_volume(tapered, oblique):
     err = np.abs(np.array(est) - truth)
     rmse = float(np.sqrt(np.mean(err**2)))
     print(f"\nHMM on a rising volume: RMSE {rmse:.1f} ml, max {err.max():.1f} ml (bins 16 ml)")
-    assert err.max() <= 24.0 and rmse <= 12.0
+    assert err.max() <= 16.0 and rmse <= 8.0             # measured 11.1 and 5.0 ml
 
 
 def test_learn_transition_recovers_a_known_chain():
@@ -174,3 +175,18 @@ def test_bad_input_is_refused(tapered):
     d = default_transition(5)
     np.testing.assert_allclose(d.sum(1), 1.0)
     assert d[2, 3] > d[2, 1] and d[2, 0] < 1e-5
+
+
+def test_estimate_series_settles_on_a_still_volume(tapered, oblique):
+    """Full-resolution masks (blocks of the 200 ml expected mask, 10 % flipped) through
+    estimate_series, which downsamples them and recomputes the expected masks per frame."""
+    table, cam, _ = oblique
+    m = expected_masks(LevelTable.create(tapered, [200.0]), UPRIGHT, cam, stride=2).liquid[0]
+    rng = np.random.default_rng(3)
+    masks = np.stack([np.kron(m ^ (rng.random(m.shape) < 0.1), np.ones((2, 2), bool))
+                      for _ in range(4)])
+    med, post = estimate_series(table, cam, np.tile(UPRIGHT, (4, 1)), masks, stride=2)
+    assert post.shape == (4, 25) and np.allclose(post.sum(1), 1.0)
+    assert abs(med[-1] - 200.0) <= table.volumes_ml[1]
+    with pytest.raises(ValueError, match="same T"):
+        estimate_series(table, cam, np.tile(UPRIGHT, (3, 1)), masks, stride=2)

@@ -1,6 +1,6 @@
 """The volume estimator over a sequence of frames, and its measurement on a generated recording.
 
-``python -m liquidtwin.volumes.estimator REC.mcap [--target NAME] [--camera NAME] [--stride S]
+``python -m liquidtwin.volumes REC.mcap [--target NAME] [--camera NAME] [--stride S]
 [--bins K]`` prints the estimate per mask frame and, when the generator's truth sidecar
 (``REC.truth.npz`` / ``.truth.json``) lies next to the recording, the RMSE against the true
 volume (true particles inside the target cavity × the truth's ml per particle).
