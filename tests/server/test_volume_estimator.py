@@ -100,7 +100,8 @@ def test_tilted_surface_height_holds_the_volume(tapered):
     world_y = p @ quat_matrix(q)[1] + pose[1]
     cell = np.prod((hi - lo) / n) * 1e6
     got = np.array([(world_y < hk).sum() * cell for hk in h])
-    np.testing.assert_allclose(got, vols, rtol=0.03)
+    print("\ntilted heights, voxel-counted volumes:", np.round(got, 2), "ml for", vols)
+    np.testing.assert_allclose(got, vols, rtol=0.01)          # measured within 0.35 %
     assert not np.allclose(h, LevelTable.create(tapered, vols).upright + pose[1], atol=1e-3)
 
 

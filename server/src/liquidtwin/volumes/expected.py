@@ -4,11 +4,12 @@ For a container (:class:`~liquidtwin.geometry.ObjectModel`) at a pose and a came
 
 - The liquid holding v ml is the cavity below the **world-horizontal** plane y = h(v).
   :class:`LevelTable` gives h(v): upright containers use the exact bisection of
-  :meth:`ObjectModel.height_for_volume` (precomputed once per bin); a tilted one uses the
-  volume of the cavity below the tilted plane sampled at ``_TILT_LEVELS`` levels and
-  inverted by linear interpolation (the clipped-volume function is smooth, so the error is
-  well below a bin of a few ml). Volumes above what the tilted cavity holds below its rim
-  plane are placed as if the rim plane were closed (spilling is not modelled).
+  :meth:`ObjectModel.height_for_volume` (precomputed once per bin); a tilted one samples
+  the volume of the cavity below the tilted plane at ``_TILT_LEVELS`` levels, then bisects
+  ``_BISECT_STEPS`` times inside the bracketing pair of levels per bin (about 0.3 s per
+  frame for 61 bins; a tilt under 0.1 mrad counts as upright). Volumes above what the
+  tilted cavity holds below its rim plane are placed as if the rim plane were closed
+  (spilling is not modelled).
 - Rays go from the camera centre through the **centres of stride × stride pixel blocks**
   (the image is downsampled by the integer ``stride``, the block (i, j) covers pixels
   [i·s, (i+1)·s) × [j·s, (j+1)·s); its ray passes through (u, v) = (j·s + (s−1)/2,
@@ -36,6 +37,7 @@ import trimesh
 from ..geometry.volume import ML_PER_M3
 
 _TILT_LEVELS = 129
+_BISECT_STEPS = 8                    # bracket (extent / 128) / 2⁸: ~1.5 µm for a 5 cm cavity
 _UPRIGHT_COS = math.cos(1e-4)        # tilts below 0.1 mrad count as upright
 _EPS = 1e-7                          # m, ties between the cavity and the solid surfaces
 _MAX_PAIRS = 1 << 21
@@ -108,7 +110,17 @@ class LevelTable:
         proj = np.asarray(cav.vertices, float) @ n
         levels = np.linspace(proj.min(), proj.max(), _TILT_LEVELS)
         vol = np.maximum.accumulate([_plane_volume(cav, n, s) * ML_PER_M3 for s in levels])
-        return np.interp(self.volumes_ml, vol, levels) + pose[1]
+        out = np.interp(self.volumes_ml, vol, levels)
+        for k, v in enumerate(self.volumes_ml):           # bisect inside the bracketing levels
+            i = int(np.searchsorted(vol, v))
+            if v <= 0 or i == 0 or i >= len(levels):
+                continue
+            lo, hi = levels[i - 1], levels[i]
+            for _ in range(_BISECT_STEPS):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if _plane_volume(cav, n, mid) * ML_PER_M3 < v else (lo, mid)
+            out[k] = 0.5 * (lo + hi)
+        return out + pose[1]
 
 
 def pixel_rays(camera, stride: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
