@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from liquidtwin_proto import liquidtwin_pb2 as pb
+from rocked_bowl import bowl_session, rock
 from liquidtwin.camera import Camera, coverage, visible
 from liquidtwin.scenes.shapes import box, sample_grid
 from liquidtwin.sim import FluidModel, lattice
@@ -152,7 +154,6 @@ def test_rejects_bad_settings():
 def test_golden_pour_with_the_map_filter_keeps_its_particles_and_tracks_like_open_loop():
     import test_session_engine as S
     from liquidtwin.recordings import read_recording
-    from liquidtwin_proto import liquidtwin_pb2 as pb
 
     rec = read_recording(S.GOLDEN, images=False)
     open_iou, _, open_ms = S._replay(S._engine(rec, pb.OPEN_LOOP), rec)
@@ -170,58 +171,18 @@ def test_golden_pour_with_the_map_filter_keeps_its_particles_and_tracks_like_ope
     assert map_vol[0] < 1.0 and map_vol[-1] < 2.5 and map_vol.max() < 8.0, map_vol
 
 
-def _bowl_session(tracker_kw: dict):
-    """A bowl of ~1.5k particles seen whole by a 640×480 camera, the mask a disc where its
-    surface projects, tracked by the MAP filter set up with ``tracker_kw``."""
-    import cv2
-    from liquidtwin.session import SessionEngine
-    from liquidtwin_proto import liquidtwin_pb2 as pb
-
-    spec = pb.SessionSpec(tracking=pb.MAP_FILTER)
-    spec.scene.name = "bowl"
-    spec.scene.simulation.h, spec.scene.simulation.dt, spec.scene.simulation.iterations = 0.011, 1 / 60, 4
-    spec.scene.simulation.spacing = 0.55 * 0.011
-    bowl = spec.scene.objects.add(name="bowl", model="bowl", container=True)
-    bowl.initial_pose.extend([0, 0, 0, 0, 0, 0, 1])
-    spec.scene.fills.add(container="bowl", volume_ml=150.0)
-    eng = SessionEngine.create(spec)
-    for k, v in tracker_kw.items():
-        setattr(eng._tracker, k, v)
-    cam = Camera.look_at((0.0, 0.35, 0.30), (0.0, 0.03, 0.0), width=640, height=480, fov_y_deg=45.0)
-    eng.set_camera("cam", K=cam.K.double().numpy(), D=np.zeros(5), width=640, height=480,
-                   pose=cam.pose.double().numpy())
-    ring = torch.tensor([[0.07 * math.cos(a), 0.03, 0.07 * math.sin(a)]
-                         for a in np.linspace(0, 2 * math.pi, 48, endpoint=False)], dtype=torch.float64)
-    uv, _ = cam.project(ring.to(cam.K.dtype))
-    mask = np.zeros((480, 640), np.uint8)
-    cv2.fillPoly(mask, [uv.detach().numpy().round().astype(np.int32)], 1)
-    return eng, mask.astype(bool)
-
-
-def _rock(eng, mask, frames: int) -> tuple[int, float]:
-    """Rock the bowl ±8° at 0.5 Hz for ``frames`` 30 Hz frames, correcting every frame:
-    (particles left in the session, fastest particle m/s)."""
-    fastest = 0.0
-    for i in range(frames):
-        a = math.radians(8.0) * math.sin(math.pi * i / 30)
-        eng.advance(i / 30, {"bowl": [0, 0, 0, math.sin(a / 2), 0, 0, math.cos(a / 2)]})
-        eng.correct("cam", mask)
-        fastest = max(fastest, float(eng.speeds().max()))
-    return eng.n_particles, fastest
-
-
 def test_default_correction_keeps_a_fully_seen_bowl_of_liquid_calm():
     """With a big liquid body in view the MAP jumps must not inject energy: the defaults keep
     every particle in a gently rocked bowl, slow; a full velocity share (dv = dx / camera
     period, the thesis's literal momentum rule) is checked too, so the test tells them apart."""
-    eng, mask = _bowl_session({})
+    eng, mask = bowl_session(pb.MAP_FILTER, {})
     n0 = eng.n_particles
-    n, fastest = _rock(eng, mask, 40)
+    n, fastest = rock(eng, mask, 40)
     print(f"\ndefaults: {n}/{n0} particles kept, fastest {fastest:.2f} m/s")
     assert n == n0 and fastest < 0.6, (n, n0, fastest)
     # the thesis's literal settings: 5 mm cells, velocity from the jump, plain argmax
-    old, mask = _bowl_session({"cell_m": 0.005, "velocity_share": 1.0, "min_gain": 0.0})
-    n_old, fastest_old = _rock(old, mask, 40)
+    old, mask = bowl_session(pb.MAP_FILTER, {"cell_m": 0.005, "velocity_share": 1.0, "min_gain": 0.0})
+    n_old, fastest_old = rock(old, mask, 40)
     print(f"thesis settings: {n_old}/{n0} particles kept, fastest {fastest_old:.2f} m/s")
     assert fastest_old > 1.0 or n_old < n0, (n_old, fastest_old)
 

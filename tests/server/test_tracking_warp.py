@@ -3,10 +3,11 @@ liquid, the 3-D lift, and that occluded particles are never corrected."""
 
 import math
 
-import cv2
 import numpy as np
 import pytest
 import torch
+from liquidtwin_proto import liquidtwin_pb2 as pb
+from rocked_bowl import bowl_session, rock
 from liquidtwin.camera import Camera, coverage, iou, model_mask, visible
 from liquidtwin.sim import FluidModel, lattice
 from liquidtwin.tracking import (Observation, OpenLoop, WarpField, image_scale, lift, sample_bilinear, sph_smooth,
@@ -143,54 +144,14 @@ def test_field_scales_with_image_size_and_rejects_bad_settings():
             WarpField(**bad)
 
 
-def _bowl_session(tracker_kw: dict):
-    """A bowl of ~1.5k particles seen whole by a 640×480 camera, the mask a disc where its
-    surface projects, and the session's warp tracker set up with ``tracker_kw``."""
-    from liquidtwin_proto import liquidtwin_pb2 as pb
-
-    from liquidtwin.session import SessionEngine
-
-    spec = pb.SessionSpec()
-    spec.scene.name = "bowl"
-    spec.scene.simulation.h, spec.scene.simulation.dt, spec.scene.simulation.iterations = 0.011, 1 / 60, 4
-    spec.scene.simulation.spacing = 0.55 * 0.011
-    bowl = spec.scene.objects.add(name="bowl", model="bowl", container=True)
-    bowl.initial_pose.extend([0, 0, 0, 0, 0, 0, 1])
-    spec.scene.fills.add(container="bowl", volume_ml=150.0)
-    eng = SessionEngine.create(spec)
-    for k, v in tracker_kw.items():
-        setattr(eng._tracker, k, v)
-    cam = Camera.look_at((0.0, 0.35, 0.30), (0.0, 0.03, 0.0), width=640, height=480, fov_y_deg=45.0)
-    eng.set_camera("cam", K=cam.K.double().numpy(), D=np.zeros(5), width=640, height=480,
-                   pose=cam.pose.double().numpy())
-    ring = torch.tensor([[0.07 * math.cos(a), 0.03, 0.07 * math.sin(a)]
-                         for a in np.linspace(0, 2 * math.pi, 48, endpoint=False)], dtype=torch.float64)
-    uv, _ = cam.project(ring.to(cam.K.dtype))
-    mask = np.zeros((480, 640), np.uint8)
-    cv2.fillPoly(mask, [uv.detach().numpy().round().astype(np.int32)], 1)
-    return eng, mask.astype(bool)
-
-
-def _rock(eng, mask, frames: int) -> tuple[int, float]:
-    """Rock the bowl ±8° at 0.5 Hz for ``frames`` 30 Hz frames, correcting every frame:
-    (particles left in the session, fastest particle m/s)."""
-    fastest = 0.0
-    for i in range(frames):
-        a = math.radians(8.0) * math.sin(math.pi * i / 30)
-        eng.advance(i / 30, {"bowl": [0, 0, 0, math.sin(a / 2), 0, 0, math.cos(a / 2)]})
-        eng.correct("cam", mask)
-        fastest = max(fastest, float(eng.speeds().max()))
-    return eng.n_particles, fastest
-
-
 def test_default_correction_keeps_a_fully_seen_bowl_of_liquid_calm():
     """Regression: with a big liquid body in view the correction must not inject energy. The
     defaults keep every particle in a gently rocked bowl; the earlier defaults (velocity share
     1, cap 1 h) threw liquid out — checked here too, so this test can tell them apart."""
-    eng, mask = _bowl_session({})
+    eng, mask = bowl_session(pb.WARP_FIELD, {})
     n0 = eng.n_particles
-    n, fastest = _rock(eng, mask, 40)
+    n, fastest = rock(eng, mask, 40)
     assert n == n0 and fastest < 0.6, (n, n0, fastest)
-    old, mask = _bowl_session({"velocity_share": 1.0, "max_move": 1.0, "gain": 300.0})
-    n_old, fastest_old = _rock(old, mask, 40)
+    old, mask = bowl_session(pb.WARP_FIELD, {"velocity_share": 1.0, "max_move": 1.0, "gain": 300.0})
+    n_old, fastest_old = rock(old, mask, 40)
     assert fastest_old > 1.0 or n_old < n0, (n_old, fastest_old)
