@@ -333,6 +333,25 @@ def test_coverage_and_mask_match_per_particle_loop(radius):
     assert np.array_equal(torch.round(t).numpy().astype(np.int32), ref)
 
 
+def test_sphere_coverage_matches_per_particle_loop():
+    # Each particle drawn as its own projected sphere: radius fx·r/depth, half-pixel rounded.
+    rng = np.random.default_rng(5)
+    H, W, fx, r_m = 40, 60, 300.0, 0.004
+    uv = torch.as_tensor(rng.uniform([-5, -5], [W + 5, H + 5], (90, 2)))
+    depth = torch.as_tensor(rng.uniform(0.15, 2.0, 90))
+    vis = torch.as_tensor(rng.uniform(size=90) < 0.85)
+    r_px = _render.sphere_radius_px(fx, depth, r_m, min_px=1.0)
+    raw = np.clip(fx * r_m / depth.numpy(), 1.0, 40.0)
+    assert np.allclose(r_px.numpy(), np.round(raw * 2) / 2)
+    assert len(torch.unique(r_px)) > 3                     # several radius groups exercised
+    ref = np.zeros((H, W), np.int32)
+    jj, ii = np.meshgrid(np.arange(W), np.arange(H))
+    for (u, v), r, s in zip(uv.numpy(), r_px.numpy(), vis.numpy()):
+        if s:
+            ref += (jj - math.floor(u + 0.5)) ** 2 + (ii - math.floor(v + 0.5)) ** 2 <= r ** 2
+    assert np.array_equal(_render.sphere_coverage(uv, r_px, vis, H, W).numpy(), ref)
+
+
 def test_mask_dense_particles_and_invisible_not_drawn():
     rng = np.random.default_rng(5)
     uv = torch.as_tensor(rng.uniform(0, 64, (5000, 2)), dtype=torch.float32)

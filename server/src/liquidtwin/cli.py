@@ -119,6 +119,12 @@ def _configure_generate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, metavar="REC.mcap",
                    help="recording to write; the truth goes to REC.truth.json (+ REC.truth.npz) beside it")
     p.add_argument("--quick", action="store_true", help="short, half-filled, 320x240 variant (tests, CI)")
+    p.add_argument("--source", choices=("cup", "bottle", "mug"), help="pour scenes: the source container "
+                   "(default: drawn from the seed)")
+    p.add_argument("--target", choices=("bowl", "fruit_bowl", "dog_dish", "pan"),
+                   help="pour scenes: the target container (default: drawn from the seed)")
+    p.add_argument("--fill", type=float, metavar="FRACTION",
+                   help="pour scenes: initial fill of the source, 0–1 (default: 0.3, 0.6 or 0.9 from the seed)")
     p.add_argument("--rgb", action="store_true", help="also write synthetic RGB frames")
     p.add_argument("--perfect-sensors", action="store_true",
                    help="no pose/mask noise and no dropped frames")
@@ -146,7 +152,8 @@ def run_generate(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         g = generate(args.scene, args.out, effects=effects, seed=args.seed, quick=args.quick, rgb=args.rgb,
-                     noise=not args.perfect_sensors, progress=not args.no_progress)
+                     noise=not args.perfect_sensors, progress=not args.no_progress,
+                     choices={"source": args.source, "target": args.target, "fraction": args.fill})
     except ValueError as exc:
         print(f"liquidtwin generate: {exc}", file=sys.stderr)
         return 2
@@ -182,6 +189,8 @@ COMMANDS: dict[str, Command] = {
 
 from .service.cli import HELP as _SERVE_HELP, add_serve_parser, run_serve  # noqa: E402
 COMMANDS["serve"] = Command(_SERVE_HELP, run_serve, add_serve_parser)
+from .evaluate.cli import HELP as _EVAL_HELP, configure as _eval_configure, run as _eval_run  # noqa: E402
+COMMANDS["evaluate"] = Command(_EVAL_HELP, _eval_run, _eval_configure)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -179,3 +179,25 @@ def iou(a, b) -> float:
                          f"got {tuple(a.shape)} and {tuple(b.shape)}")
     union = int((a | b).sum())
     return 1.0 if union == 0 else int((a & b).sum()) / union
+
+
+def sphere_radius_px(fx: float, depth: torch.Tensor, radius_m: float, *, min_px: float = 1.0,
+                     max_px: float = 40.0) -> torch.Tensor:
+    """Projected radius of a sphere of ``radius_m`` at ``depth`` (N,) m, px, rounded to half
+    pixels (so particles fall into a few radius groups) and clamped to [min_px, max_px]."""
+    r = (float(fx) * float(radius_m) / depth.clamp_min(1e-6)).clamp(min_px, max_px)
+    return torch.round(r * 2.0) / 2.0
+
+
+def sphere_coverage(uv, radius_px: torch.Tensor, visible, height: int, width: int) -> torch.Tensor:
+    """Coverage Φ of visible particles drawn as discs of per-particle ``radius_px`` (N,) px
+    (e.g. :func:`sphere_radius_px`): the sum of :func:`coverage` over the radius groups.
+    Returns (H, W) int32 on uv's device; its ``> 0`` is the model mask of spheres."""
+    H, W = _check_size(height, width)
+    uv = torch.as_tensor(uv)
+    keep = torch.ones(uv.shape[0], dtype=torch.bool, device=uv.device) if visible is None else visible.to(uv.device)
+    out = torch.zeros((H, W), dtype=torch.int32, device=uv.device)
+    r = radius_px.to(uv.device)
+    for value in torch.unique(r[keep]).tolist():
+        out += coverage(uv, keep & (r == value), H, W, radius_px=float(value)).to(out.device)
+    return out

@@ -149,10 +149,20 @@ def _source_sites(index: int, model, fill_ml: float):
     return leak, blockage
 
 
-def _pour(kind: str, rng, quick: bool) -> Setup:
-    source_name = str(rng.choice(["cup", "bottle", "mug"]))
-    target_name = str(rng.choice(["bowl", "fruit_bowl", "dog_dish", "pan"]))
-    fraction = float(rng.choice([0.3, 0.6, 0.9]))
+SOURCES = ("cup", "bottle", "mug")
+TARGETS = ("bowl", "fruit_bowl", "dog_dish", "pan")
+FRACTIONS = (0.3, 0.6, 0.9)
+
+
+def _pour(kind: str, rng, quick: bool, source: str | None = None, target: str | None = None,
+          fraction: float | None = None) -> Setup:
+    # Always draw, then override: a chosen source leaves every other draw of the seed unchanged.
+    source_name = str(rng.choice(SOURCES))
+    target_name = str(rng.choice(TARGETS))
+    drawn = float(rng.choice(FRACTIONS))
+    source_name = source or source_name
+    target_name = target or target_name
+    fraction = drawn if fraction is None else float(fraction)
     target = _item("target", target_name, mo.Static(), container=True)
     src_model = build(source_name)
     t_lo, t_hi = target.model.cavity.bounds
@@ -262,9 +272,9 @@ def _ladle(rng, quick: bool) -> Setup:
 
 
 SCENES: dict[str, Callable] = {
-    "pour_partial": lambda rng, quick: _pour("partial", rng, quick),
-    "pour_hold": lambda rng, quick: _pour("hold", rng, quick),
-    "pour_dump": lambda rng, quick: _pour("dump", rng, quick),
+    "pour_partial": lambda rng, quick, **kw: _pour("partial", rng, quick, **kw),
+    "pour_hold": lambda rng, quick, **kw: _pour("hold", rng, quick, **kw),
+    "pour_dump": lambda rng, quick, **kw: _pour("dump", rng, quick, **kw),
     "catching": _catching,
     "pipe": _pipe,
     "plate_tilt": _plate,
@@ -272,8 +282,29 @@ SCENES: dict[str, Callable] = {
 }
 
 
-def build_setup(name: str, rng: np.random.Generator, quick: bool = False) -> Setup:
-    """The scene ``name`` randomised by ``rng``; ``quick``: sped-up, half-filled, 320×240."""
+#: What a pour scene lets a caller choose instead of the seed (evaluation benchmarks).
+CHOICES = {"source": SOURCES, "target": TARGETS, "fraction": None}
+
+
+def build_setup(name: str, rng: np.random.Generator, quick: bool = False, **choices) -> Setup:
+    """The scene ``name`` randomised by ``rng``; ``quick``: sped-up, shortened, 320×240.
+
+    ``choices`` (pour scenes only) fix what the seed would otherwise draw: ``source`` (one of
+    ``SOURCES``), ``target`` (one of ``TARGETS``), ``fraction`` (initial fill of the source,
+    0 < fraction ≤ 1). Every other draw of the seed stays the same.
+    """
     if name not in SCENES:
         raise ValueError(f"unknown scene {name!r}; known: {', '.join(SCENES)}")
-    return dataclasses.replace(SCENES[name](rng, quick), quick=quick)
+    choices = {k: v for k, v in choices.items() if v is not None}
+    if choices:
+        if not name.startswith("pour_"):
+            raise ValueError(f"scene {name!r} takes no choices (only pour scenes do); got {sorted(choices)}")
+        for key, value in choices.items():
+            if key not in CHOICES:
+                raise ValueError(f"unknown scene choice {key!r}; known: {', '.join(CHOICES)}")
+            allowed = CHOICES[key]
+            if allowed is not None and value not in allowed:
+                raise ValueError(f"{key} {value!r} is not one of {', '.join(allowed)}")
+        if "fraction" in choices and not 0.0 < float(choices["fraction"]) <= 1.0:
+            raise ValueError(f"fill fraction {choices['fraction']} must be in (0, 1]")
+    return dataclasses.replace(SCENES[name](rng, quick, **choices), quick=quick)

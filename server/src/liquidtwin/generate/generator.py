@@ -91,7 +91,7 @@ def scene_spec(setup, session_id: str = "generated") -> pb.SceneSpec:
 
 
 def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: bool = False, rgb: bool = False, noise: bool = True,
-             progress: bool = False) -> Generated:
+             progress: bool = False, choices: dict | None = None) -> Generated:
     """Write ``out`` (MCAP) and ``out`` with suffix ``.truth.json`` / ``.truth.npz``.
 
     Args:
@@ -102,12 +102,14 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
       seed: randomises the scene, the world, the effect's extras and all sensor noise.
       quick: the short, small variant (tests). rgb: also write synthetic RGB frames.
       noise: pose/mask noise and dropped frames (off: perfect sensors, for golden files).
+      choices: pour scenes only — fix ``source``, ``target`` or ``fraction`` instead of
+        drawing them from the seed (``catalog.build_setup``).
     """
     out = Path(out)
     # Independent streams: the same seed gives the same scene, world jitter and sensor noise
     # whatever effects are hidden, so an effect is the only difference between two recordings.
     scene_rng, effect_rng, world_rng, rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4))
-    setup = catalog.build_setup(scene, scene_rng, quick)
+    setup = catalog.build_setup(scene, scene_rng, quick, **(choices or {}))
     effs = _resolve(effects, effect_rng)
     world = build_world(setup, effs, world_rng)
     state, reports = initial_state(world, setup, progress=progress)
@@ -175,7 +177,7 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
                         frame_world_step=np.array([f[1] for f in truth_frames], np.int64),
                         dt=np.float64(setup.dt))
     truth = {
-        "version": TRUTH_VERSION, "scene": scene, "seed": seed, "quick": quick, "rgb": rgb, "noise": noise,
+        "version": TRUTH_VERSION, "scene": scene, "seed": seed, "quick": quick, "choices": {k: v for k, v in (choices or {}).items() if v is not None}, "rgb": rgb, "noise": noise,
         "effect": effs[0].as_dict() if len(effs) == 1 else None,
         "effects": [e.as_dict() for e in effs],
         "world": {"params": world.params, "iterations": world.model.iterations, "h": setup.h, "dt": setup.dt,

@@ -9,20 +9,15 @@ these observations therefore faces a real, not a self-generated, mask.
 
 from __future__ import annotations
 
-import math
 
 import cv2
 import numpy as np
 import torch
 
 from ..camera import Camera, visible
-from ..camera.render import coverage
+from ..camera.render import sphere_coverage, sphere_radius_px
+from ..sim.packing import particle_radius  # noqa: F401  (re-exported: the generator's radius)
 from ..scenes.motions import transform
-
-
-def particle_radius(spacing: float) -> float:
-    """Radius of the sphere one particle stands for, m: the rest volume 0.75 s³ as a ball."""
-    return (3.0 * 0.75 * spacing**3 / (4.0 * math.pi)) ** (1.0 / 3.0)
 
 
 def liquid_mask(camera: Camera, x: torch.Tensor, objects, poses: torch.Tensor, radius_m: float,
@@ -43,11 +38,8 @@ def liquid_mask(camera: Camera, x: torch.Tensor, objects, poses: torch.Tensor, r
     thick = np.zeros((H, W), np.float32)
     mask = np.zeros((H, W), bool)
     if uv.shape[0]:
-        r_px = (camera.fx * radius_m / depth).clamp(0.6, 40.0)
-        # Group by radius rounded to half pixels: one exact disc render per group.
-        key = torch.round(r_px * 2.0) / 2.0
-        for r in torch.unique(key):
-            thick += coverage(uv[key == r], None, H, W, radius_px=float(r)).numpy().astype(np.float32)
+        r_px = sphere_radius_px(camera.fx, depth, radius_m, min_px=0.6)
+        thick = sphere_coverage(uv, r_px, None, H, W).numpy().astype(np.float32)
         mask = thick > 0                                 # model_mask ≡ coverage > 0
     if blur_px > 0:
         soft = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), blur_px)

@@ -42,6 +42,11 @@ def particle_volume(spacing: float) -> float:
     return 0.75 * spacing**3
 
 
+def particle_radius(spacing: float) -> float:
+    """Radius of the sphere one particle stands for, m: the rest volume 0.75 s³ as a ball."""
+    return (3.0 * 0.75 * spacing**3 / (4.0 * math.pi)) ** (1.0 / 3.0)
+
+
 def calibrate(h: float, spacing: float) -> tuple[float, float]:
     """(ρ0, κ) from a particle in the rest lattice: ρ0 = Σ_j W_ρ(d_j) (unit mass, self
     excluded, kernel units m⁻³) and κ = 1 / Σ_j W_ω(d_j)², the stiffness that makes one

@@ -32,8 +32,9 @@ class Observation:
       uv: (N, 2) projected positions, px (OpenCV pixel centres).
       depth: (N,) camera-frame depth of each particle, m.
       visible: (N,) bool, in front of the camera, in the image and not occluded.
-      coverage: (H, W) int32 coverage Φ of the visible particles (discs of ``radius_px``).
-      radius_px: disc radius of the model mask and coverage, px.
+      coverage: (H, W) int32 coverage Φ of the visible particles (each drawn as its projected
+        sphere, ``camera.render.sphere_coverage``).
+      radius_px: typical (median) disc radius of the visible particles, px.
       model: the session's :class:`~liquidtwin.sim.FluidModel` (kernel radius h, objects).
       poses: (M, 7) object poses now.
     """
