@@ -86,12 +86,14 @@ class Error(_message.Message):
     def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., code: _Optional[_Union[Error.Code, str]] = ..., message: _Optional[str] = ...) -> None: ...
 
 class ContainerVolume(_message.Message):
-    __slots__ = ("name", "ml")
+    __slots__ = ("name", "ml", "mask_ml")
     NAME_FIELD_NUMBER: _ClassVar[int]
     ML_FIELD_NUMBER: _ClassVar[int]
+    MASK_ML_FIELD_NUMBER: _ClassVar[int]
     name: str
     ml: float
-    def __init__(self, name: _Optional[str] = ..., ml: _Optional[float] = ...) -> None: ...
+    mask_ml: float
+    def __init__(self, name: _Optional[str] = ..., ml: _Optional[float] = ..., mask_ml: _Optional[float] = ...) -> None: ...
 
 class Volumes(_message.Message):
     __slots__ = ("header", "containers")
@@ -409,3 +411,59 @@ class SceneMeshes(_message.Message):
     header: Header
     objects: _containers.RepeatedCompositeFieldContainer[ObjectMesh]
     def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., objects: _Optional[_Iterable[_Union[ObjectMesh, _Mapping]]] = ...) -> None: ...
+
+class Hypothesis(_message.Message):
+    __slots__ = ("name", "probability", "log_likelihood")
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    PROBABILITY_FIELD_NUMBER: _ClassVar[int]
+    LOG_LIKELIHOOD_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    probability: float
+    log_likelihood: float
+    def __init__(self, name: _Optional[str] = ..., probability: _Optional[float] = ..., log_likelihood: _Optional[float] = ...) -> None: ...
+
+class InferFillRequest(_message.Message):
+    __slots__ = ("header", "session_id", "container", "fractions", "tracking")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    CONTAINER_FIELD_NUMBER: _ClassVar[int]
+    FRACTIONS_FIELD_NUMBER: _ClassVar[int]
+    TRACKING_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    session_id: str
+    container: str
+    fractions: _containers.RepeatedScalarFieldContainer[float]
+    tracking: TrackingMode
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., container: _Optional[str] = ..., fractions: _Optional[_Iterable[float]] = ..., tracking: _Optional[_Union[TrackingMode, str]] = ...) -> None: ...
+
+class InferBlockageRequest(_message.Message):
+    __slots__ = ("header", "session_id", "object", "tracking")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    OBJECT_FIELD_NUMBER: _ClassVar[int]
+    TRACKING_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    session_id: str
+    object: str
+    tracking: TrackingMode
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., object: _Optional[str] = ..., tracking: _Optional[_Union[TrackingMode, str]] = ...) -> None: ...
+
+class InferenceReply(_message.Message):
+    __slots__ = ("header", "session_id", "hypotheses", "best", "times_s", "probability_over_time", "frames", "wall_s")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    HYPOTHESES_FIELD_NUMBER: _ClassVar[int]
+    BEST_FIELD_NUMBER: _ClassVar[int]
+    TIMES_S_FIELD_NUMBER: _ClassVar[int]
+    PROBABILITY_OVER_TIME_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    WALL_S_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    session_id: str
+    hypotheses: _containers.RepeatedCompositeFieldContainer[Hypothesis]
+    best: str
+    times_s: _containers.RepeatedScalarFieldContainer[float]
+    probability_over_time: PackedArray
+    frames: int
+    wall_s: float
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., hypotheses: _Optional[_Iterable[_Union[Hypothesis, _Mapping]]] = ..., best: _Optional[str] = ..., times_s: _Optional[_Iterable[float]] = ..., probability_over_time: _Optional[_Union[PackedArray, _Mapping]] = ..., frames: _Optional[int] = ..., wall_s: _Optional[float] = ...) -> None: ...

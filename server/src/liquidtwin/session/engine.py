@@ -10,6 +10,7 @@ bit (docs/service.md, "Nothing lost").
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -120,6 +121,9 @@ class SessionEngine:
         self.container_names = scene.containers
         self.dt = float(scene.model.dt)
         self._radius_m = particle_radius(float(scene.model.spacing))
+        # The model the steps use: the scene's, plus any term the tracker runs inside the solver.
+        extra = tuple(tracker.terms())
+        self._step_model = dataclasses.replace(scene.model, terms=scene.model.terms + extra) if extra else scene.model
         self._capacity = {n: scene.objects[scene.names.index(n)].capacity_ml for n in scene.containers}
         self._voxels = {n: CavityVoxels(scene.objects[scene.names.index(n)]) for n in scene.containers}
         self._reset_state()
@@ -194,7 +198,7 @@ class SessionEngine:
             path = torch.as_tensor(path, device=state.x.device)
             with torch.no_grad():
                 for k in range(steps):
-                    state = step(self._scene.model, state, path[k])
+                    state = step(self._step_model, state, path[k])
                 state, _ = cull_fallen(state, self._scene.model.objects)
         ms = 1e3 * (time.perf_counter() - start)
         self._state = state

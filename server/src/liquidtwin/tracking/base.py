@@ -70,6 +70,12 @@ class Tracker(ABC):
     def correct(self, obs: Observation) -> Correction | None:
         """The correction for one observation, or None to leave the particles alone."""
 
+    def terms(self) -> tuple:
+        """Extra :class:`~liquidtwin.sim.terms.Term` s the session adds to its PBF step while this
+        tracker runs (a correction inside the solver's inner loop, SPNets + perception); they
+        read what the last :meth:`correct` stored. Default: none."""
+        return ()
+
     def state_dict(self) -> dict:
         """Internal state (tensors and plain numbers only) for checkpoints."""
         return {}
