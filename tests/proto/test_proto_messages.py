@@ -71,7 +71,7 @@ SAMPLES = {
     "PackedArray": pb.PackedArray(shape=[2, 3], dtype="float32", data=bytes(range(24))),
     "Error": pb.Error(header=_header(), code=pb.Error.UNKNOWN_SESSION,
                       message="no session 'pour-02' on this server"),
-    "ContainerVolume": pb.ContainerVolume(name="source", ml=212.5),
+    "ContainerVolume": pb.ContainerVolume(name="source", ml=212.5, mask_ml=205.0),
     "Volumes": pb.Volumes(
         header=_header(8),
         containers=[pb.ContainerVolume(name="source", ml=150.0),
@@ -103,6 +103,16 @@ SAMPLES = {
     "SetTaskRequest": pb.SetTaskRequest(header=_header(4), task=_task()),
     "ObjectMesh": _mesh(),
     "SceneMeshes": pb.SceneMeshes(header=_header(5), objects=[_mesh()]),
+    "Hypothesis": pb.Hypothesis(name="60%", probability=0.93, log_likelihood=-12.5),
+    "InferFillRequest": pb.InferFillRequest(header=_header(8), session_id="s1", container="source",
+                                            fractions=[0.0, 0.3, 0.6, 0.9], tracking=pb.WARP_FIELD),
+    "InferBlockageRequest": pb.InferBlockageRequest(header=_header(9), session_id="s1", object="pipe",
+                                                    tracking=pb.OPEN_LOOP),
+    "InferenceReply": pb.InferenceReply(
+        header=_header(10), session_id="s1", hypotheses=[pb.Hypothesis(name="none", probability=1.0,
+                                                                       log_likelihood=-3.0)],
+        best="none", times_s=[0.1, 0.2], frames=2, wall_s=1.5,
+        probability_over_time=pb.PackedArray(shape=[2, 1], dtype="float64", data=bytes(16))),
 }
 
 
