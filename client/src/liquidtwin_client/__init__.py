@@ -21,7 +21,7 @@ from .messages import (STREAM_TYPES, Output, decode_particles, encode_camera, en
 from .recording import ChannelSummary, RecordingError, RecordingSummary, summarize_recording
 from .replay import Frame, InputSample, Replay, load_replay
 from .results import ResultMessage, ResultsWriter, read_results
-from .session import ObjectMeshArrays, SessionHandle
+from .session import Inference, ObjectMeshArrays, SessionHandle
 from .stream import RATES, StreamAborted, stream_replay
 from .summary import StreamSummary, Tally, format_table
 
@@ -29,7 +29,7 @@ __all__ = [
     "CREATE_TIMEOUT_S", "ChannelSummary", "Client", "DEFAULT_CONNECT", "Frame", "InputSample",
     "ObjectMeshArrays", "Output", "RATES", "RPC_TIMEOUT_S", "RecordingError",
     "RecordingSummary", "Replay", "ResultMessage", "ResultsWriter", "STREAM_TYPES",
-    "ServerError", "SessionHandle", "StreamAborted", "StreamSummary", "TRACKING_MODES", "Tally",
+    "Inference", "ServerError", "SessionHandle", "StreamAborted", "StreamSummary", "TRACKING_MODES", "Tally",
     "decode_particles", "encode_camera", "encode_image", "encode_mask", "encode_poses",
     "format_table", "load_replay", "read_results", "stream_replay", "summarize_recording",
     "tracking_mode",

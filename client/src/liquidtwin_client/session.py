@@ -17,11 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import zenoh
-from liquidtwin_proto import (IN_STREAMS, OUT_STREAMS, SceneMeshes, SessionRequest, SessionStatus,
-                              SetTaskRequest, Task, decode_attachment, encode_attachment,
-                              make_header, now_ns, unpack_array)
+from liquidtwin_proto import (IN_STREAMS, OUT_STREAMS, InferBlockageRequest, InferenceReply, InferFillRequest,
+                              SceneMeshes, SessionRequest, SessionStatus, SetTaskRequest, Task,
+                              decode_attachment, encode_attachment, make_header, now_ns, unpack_array)
 
-from .connection import RPC_TIMEOUT_S, Client
+from .connection import RPC_TIMEOUT_S, Client, tracking_mode
+
+#: Inference RPCs simulate every hypothesis over the session's frames: allow minutes.
+INFER_TIMEOUT_S = 600.0
 from .messages import (Output, decode_output, encode_camera, encode_image, encode_mask,
                        encode_poses)
 
@@ -206,6 +209,35 @@ class SessionHandle:
         return [ObjectMeshArrays(m.name, unpack_array(m.vertices), unpack_array(m.faces),
                                  m.container) for m in reply.objects]
 
+    def infer_fill(self, fractions=(), container: str = "", tracking: str = "",
+                   timeout: float = INFER_TIMEOUT_S) -> Inference:
+        """How full was ``container`` (default: the scene's filled one) when the session's frames
+        began? Each initial fill fraction of its capacity (default 0, 0.3, 0.6, 0.9) is simulated
+        over the frames sent since the last reset and scored against their masks (SPEC §3).
+        ``tracking``: "open_loop", "warp_field" or "map_filter" inside each hypothesis (default:
+        the session's). Takes seconds to minutes; the session keeps running meanwhile."""
+        fr = [float(f) for f in fractions]
+        if any(not (0.0 <= f <= 1.0) for f in fr):
+            raise ValueError(f"fill fractions must be in [0, 1], got {fr}")
+        req = InferFillRequest(header=self._header(), session_id=self.session_id, container=container,
+                               fractions=fr, tracking=_tracking_mode(tracking))
+        return self._infer("infer_fill", req, timeout)
+
+    def infer_blockage(self, obj: str = "", tracking: str = "", timeout: float = INFER_TIMEOUT_S) -> Inference:
+        """Which leg of the scene's pipe junction (object ``obj``, default the scene's
+        pipe_junction) is blocked: none, left/right × partial/full, scored as infer_fill does."""
+        req = InferBlockageRequest(header=self._header(), session_id=self.session_id, object=obj,
+                                   tracking=_tracking_mode(tracking))
+        return self._infer("infer_blockage", req, timeout)
+
+    def _infer(self, method: str, req, timeout: float) -> Inference:
+        key = self.client.keys.rpc(method, self.session_id)
+        reply = self.client.call(key, req, InferenceReply, timeout)
+        over = unpack_array(reply.probability_over_time) if reply.probability_over_time.shape else np.zeros((0, 0))
+        return Inference({h.name: h.probability for h in reply.hypotheses},
+                         {h.name: h.log_likelihood for h in reply.hypotheses}, reply.best,
+                         np.asarray(reply.times_s), over, int(reply.frames), float(reply.wall_s))
+
     def close(self, timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
         """Close the session on the server (state "closed") and release this handle."""
         try:
@@ -237,6 +269,25 @@ class SessionHandle:
     def __exit__(self, *exc) -> None:
         if not self._detached:
             self.close()
+
+
+@dataclass(frozen=True)
+class Inference:
+    """Result of ``infer_fill`` / ``infer_blockage``: ``probability`` and ``log_likelihood``
+    per hypothesis name, the ``best`` one, the posterior after each mask frame
+    (``times_s`` (T,) s, ``over_time`` (T, K) in the dicts' order), frames scored, wall s."""
+
+    probability: dict
+    log_likelihood: dict
+    best: str
+    times_s: np.ndarray
+    over_time: np.ndarray
+    frames: int
+    wall_s: float
+
+
+def _tracking_mode(name: str) -> int:
+    return 0 if name in ("", None) else tracking_mode(name)     # 0: the session's own
 
 
 def _stamp(stamp_ns: int | None) -> int:

@@ -132,16 +132,26 @@ class InputChecker:
             raise InputError(str(exc), "header", exc.code) from None
         if header.stamp_ns <= 0:
             raise InputError(f"header stamp_ns must be > 0 (ns since the Unix epoch), got {header.stamp_ns}", "header")
+        return Sample(header, stream, self.decode(stream, payload), bytes(payload))
+
+    def decode(self, stream: str, payload: bytes):
+        """The checked item of one payload of ``stream`` (no header): PosesIn, CameraIn, MaskIn
+        or ImageIn; InputError otherwise. Also used to read a session's log back."""
+        if stream not in INPUT_TYPES:
+            raise InputError(f"unknown input stream {stream!r}", "stream")
         try:
             msg = parse(INPUT_TYPES[stream], payload, max_bytes=self.max_payload)
         except WireError as exc:
             raise InputError(str(exc), "decode", exc.code) from None
-        item = getattr(self, f"_{stream}")(msg)
-        return Sample(header, stream, item, bytes(payload))
+        return getattr(self, f"_{stream}")(msg)
 
     def learn(self, cam: CameraIn) -> None:
         """Remember an accepted calibration's size (masks of that camera must match it)."""
-        self.cameras[cam.name] = (cam.height, cam.width)
+        self.learn_size(cam.name, cam.height, cam.width)
+
+    def learn_size(self, name: str, height: int, width: int) -> None:
+        """Camera ``name``'s image size, px (from a calibration or the session spec)."""
+        self.cameras[name] = (int(height), int(width))
 
     # ------------------------------------------------------------------ streams
     def _poses(self, msg: FrameTransforms) -> PosesIn:

@@ -18,7 +18,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import zenoh
 from google.protobuf.descriptor import FieldDescriptor
-from liquidtwin_proto import (CreateSessionRequest, Error, Keys, ListSessionsReply, ListSessionsRequest,
+from liquidtwin_proto import (CreateSessionRequest, Error, InferBlockageRequest, InferFillRequest, Keys,
+                              ListSessionsReply, ListSessionsRequest,
                               SessionRequest, SetTaskRequest, WireError, error_bytes, make_header, parse_request,
                               validate_id, validate_session_id)
 
@@ -29,7 +30,9 @@ from .outputs import scene_meshes
 from .session import ServedSession
 
 _log = logging.getLogger("liquidtwin.serve")
-SESSION_METHODS = ("status", "reset", "close", "set_task", "meshes")
+SESSION_METHODS = ("status", "reset", "close", "set_task", "meshes", "infer_fill", "infer_blockage")
+#: Session RPCs that run a long analysis: served by their own pool so status/reset stay quick.
+SLOW_METHODS = ("infer_fill", "infer_blockage")
 #: Seconds a session's client token may be unseen at creation/restore before it counts as gone.
 TOKEN_SETTLE_S = 2.0
 _REJECT_LOG_EVERY_S = 10.0
@@ -79,6 +82,7 @@ class Server:
         self.unknown_session_samples = 0
         self._rpc_pool = ThreadPoolExecutor(4, thread_name_prefix="rpc")
         self._create_pool = ThreadPoolExecutor(2, thread_name_prefix="create")
+        self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="infer")
         self._stop = threading.Event()
         self._decls = []
         self.z = None
@@ -111,6 +115,7 @@ class Server:
                 pass
         self._rpc_pool.shutdown(wait=True, cancel_futures=True)
         self._create_pool.shutdown(wait=False, cancel_futures=True)
+        self._infer_pool.shutdown(wait=False, cancel_futures=True)
         with self._lock:
             sessions = list(self.sessions.values())
             self.sessions.clear()
@@ -168,6 +173,8 @@ class Server:
             key = str(q.key_expr)
             payload = q.payload.to_bytes() if q.payload is not None else b""
             pool = self._create_pool if key == self.keys.rpc("create_session") else self._rpc_pool
+            if key.rsplit("/", 1)[-1] in SLOW_METHODS:
+                pool = self._infer_pool
             pool.submit(self._answer, q, key, payload)
         except Exception:  # noqa: BLE001 - e.g. pools shut down while stopping
             _log.exception("query on %s could not be dispatched", q.key_expr)
@@ -202,7 +209,8 @@ class Server:
             raise WireError(f"unknown RPC {parsed.name!r}; methods: create_session, list_sessions")
         if parsed.name not in SESSION_METHODS:
             raise WireError(f"unknown session RPC {parsed.name!r}; methods: {', '.join(SESSION_METHODS)}")
-        cls = SetTaskRequest if parsed.name == "set_task" else SessionRequest
+        cls = {"set_task": SetTaskRequest, "infer_fill": InferFillRequest,
+               "infer_blockage": InferBlockageRequest}.get(parsed.name, SessionRequest)
         req = parse_request(cls, payload, max_bytes=limit, session_id=parsed.session)
         s = self.sessions.get(parsed.session)
         if s is None or s.closed:
@@ -214,6 +222,8 @@ class Server:
         self._deadline[s.id] = time.monotonic() + self.config.orphan_grace_s
         if parsed.name == "meshes":
             return scene_meshes(make_header(s.id), s.meshes())
+        if parsed.name in SLOW_METHODS:
+            return s.infer(parsed.name, req)
         if parsed.name == "reset":
             s.reset()
         elif parsed.name == "set_task":

@@ -15,9 +15,11 @@ import threading
 import time
 
 import zenoh
-from liquidtwin_proto import Header, PROTOCOL_VERSION, SessionStatus, Task, encode_attachment, now_ns
+from liquidtwin_proto import (PROTOCOL_VERSION, Header, InferenceReply, SessionStatus, Task, TrackingMode, encode_attachment,
+                              now_ns)
 
 from ..session import EngineError
+from ..session.errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME
 from .checkpoint import load_checkpoint, mark_closed, save_checkpoint
 from .inbox import Frame, Inbox
 from .inputs import INPUT_TYPES, InputChecker, InputError, session_seconds
@@ -26,6 +28,8 @@ from .outputs import container_volumes, metrics_message, overlay_image, particle
 
 _log = logging.getLogger("liquidtwin.serve")
 OUTPUTS = ("particles", "volumes", "overlay", "control", "metrics")
+_MODE_NAMES = {TrackingMode.Value("OPEN_LOOP"): "open_loop", TrackingMode.Value("WARP_FIELD"): "warp_field",
+               TrackingMode.Value("MAP_FILTER"): "map_filter"}
 
 
 class ServedSession:
@@ -49,6 +53,7 @@ class ServedSession:
         self.orphaned_since: float | None = None
         self.task: Task | None = None
         self._first_ns: int | None = None
+        self._episode_ns = 0                    # server receive time of the last reset, ns
         self._out_seq = {s: 0 for s in OUTPUTS}
         service = {}
         if restored:
@@ -59,6 +64,7 @@ class ServedSession:
                 self._first_ns = service["first_ns"] if service["first_ns"] >= 0 else None
                 self._out_seq.update(service["out_seq"])
                 self.task = Task.FromString(bytes.fromhex(service["task"])) if service["task"] else None
+                self._episode_ns = int(service.get("episode_ns", 0))
         self.inbox = Inbox(service.get("counters"), service.get("last"))
         cams = {n: engine.camera_size(n) for n in engine.camera_names}
         self.checker = InputChecker(engine.object_names, cams, config.max_payload_bytes)
@@ -182,7 +188,7 @@ class ServedSession:
         with self.lock:
             engine_state = self.engine.state_dict()
             service = {**self.inbox.state(), "first_ns": -1 if self._first_ns is None else int(self._first_ns),
-                       "out_seq": dict(self._out_seq),
+                       "out_seq": dict(self._out_seq), "episode_ns": int(self._episode_ns),
                        "task": self.task.SerializeToString().hex() if self.task is not None else ""}
             self._dirty = False
             self._last_ckpt = time.monotonic()
@@ -226,6 +232,7 @@ class ServedSession:
             self.engine.reset()
             self.inbox.clear()
             self._first_ns, self.task, self.failed = None, None, None
+            self._episode_ns = now_ns()
             self._dirty = True
 
     def set_task(self, task: Task) -> None:
@@ -238,6 +245,31 @@ class ServedSession:
     def meshes(self) -> dict:
         with self.lock:
             return self.engine.meshes()
+
+    def infer(self, method: str, req) -> InferenceReply:
+        """``infer_fill`` / ``infer_blockage`` on the inputs logged since the last reset: the
+        hypothesis bank runs on this thread (the session's worker carries on)."""
+        from ..inference import infer_blockage, infer_fill
+        from .history import NoFramesError, inference_reply, session_recording
+        with self.lock:
+            cameras = self.engine.camera_calibrations()
+            tracking = self.spec.tracking
+        try:
+            rec = session_recording(self.dir, self.spec, self.engine.object_names, cameras, since_ns=self._episode_ns)
+        except NoFramesError as exc:
+            raise EngineError(INFEASIBLE, f"session {self.id}: {exc}") from None
+        mode = _MODE_NAMES.get(req.tracking or tracking, "warp_field")
+        try:
+            if method == "infer_fill":
+                post = infer_fill(rec, container=req.container or None,
+                                  fractions=tuple(req.fractions) or None, tracking=mode)
+            else:
+                post = infer_blockage(rec, obj=req.object or None, tracking=mode)
+        except KeyError as exc:
+            raise EngineError(UNKNOWN_NAME, str(exc.args[0] if exc.args else exc)) from None
+        except ValueError as exc:
+            raise EngineError(BAD_REQUEST, str(exc)) from None
+        return inference_reply(self._header(now_ns()), post)
 
     def close(self, final: bool = True) -> None:
         """Stop the worker, write a last checkpoint, close the log and publishers. ``final``:

@@ -163,6 +163,15 @@ class SessionEngine:
         (OpenCV frame); a camera is usable once it has both."""
         self._cameras.set(name, K=K, D=D, width=width, height=height, pose=pose)
 
+    def camera_calibrations(self) -> dict:
+        """name → (K (3, 3), D (5,), width, height, pose (7,)) of every usable camera."""
+        out = {}
+        for name, e in self._cameras.known.items():
+            if {"K", "width", "height", "pose"} <= e.keys():
+                out[name] = (np.asarray(e["K"], float).reshape(3, 3), np.asarray(e.get("D", np.zeros(5)), float),
+                             int(e["width"]), int(e["height"]), np.asarray(e["pose"], float))
+        return out
+
     def camera_size(self, name: str) -> tuple[int, int] | None:
         """(height, width) px of camera ``name`` if known."""
         return self._cameras.size(name)
