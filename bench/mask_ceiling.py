@@ -1,0 +1,84 @@
+"""How well can a model mask match the observed masks at best? The TRUE particles drawn as the
+model mask, scored against the recording's own (noisy) generated masks.
+
+    OMP_NUM_THREADS=1 .venv/bin/python bench/mask_ceiling.py [--no-full] [--no-history]
+
+Generates (into a temporary directory, fixed seeds) one quick (320×240) and one full
+(640×480) ``pour_hold`` recording, then draws the true particles (truth sidecar; scoring
+only) (a) as 5 px discs (SPEC §2) and (b) as projected spheres of the model's particle
+radius (what the session engine draws), occluded by the objects at their true poses, and
+prints the mean IOU over frames whose observed mask has ≥ 50 px. This is the ceiling of
+every tracker's IOU in ``liquidtwin evaluate tracking`` and the numbers that
+``session/engine.py`` cites. Appends one record per recording to bench/history.jsonl.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from liquidtwin.evaluate import engine_for
+from liquidtwin.evaluate.tracking import ceiling_series
+from liquidtwin.generate import generate
+from liquidtwin.recordings import read_recording
+
+HISTORY = Path(__file__).parent / "history.jsonl"
+SCENE, SOURCE, FILL, SEED = "pour_hold", "cup", 0.6, 5
+
+
+def _commit() -> str:
+    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                         cwd=Path(__file__).parent)
+    return out.stdout.strip() or "unknown"
+
+
+def measure(quick: bool, tmp: Path, min_px: int = 50) -> dict:
+    path = tmp / f"{SCENE}-{'quick' if quick else 'full'}.mcap"
+    start = time.perf_counter()
+    generate(SCENE, path, seed=SEED, quick=quick, choices={"source": SOURCE, "fraction": FILL})
+    gen_s = time.perf_counter() - start
+    rec = read_recording(path, images=False)
+    eng = engine_for(rec, "open_loop")
+    cam = next(iter(rec.masks))
+    out = {}
+    for label, disc in (("discs_5px", 5.0), ("spheres", None)):
+        s = ceiling_series(rec, path, eng, cam, disc_px=disc)
+        v = [i for i, n in zip(s["iou"], s["observed_px"]) if n >= min_px]
+        out[label] = round(float(np.mean(v)), 4)
+        out["frames"] = len(v)
+    c = rec.cameras[cam]
+    return dict(what="mask_ceiling", scene=SCENE, source=SOURCE, fill=FILL, seed=SEED, quick=quick,
+                width=int(c.width), height=int(c.height), particles=eng.n_particles, generate_s=round(gen_s, 1),
+                mean_iou=out, min_px=min_px, commit=_commit(),
+                date=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+
+
+def main(argv=None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--no-full", action="store_true", help="skip the full-size recording (~1.5 min to generate)")
+    p.add_argument("--no-history", action="store_true", help="do not append to bench/history.jsonl")
+    args = p.parse_args(argv)
+    torch.set_num_threads(1)
+    records = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for quick in (True,) if args.no_full else (True, False):
+            r = measure(quick, Path(tmp))
+            print(json.dumps(r), flush=True)
+            records.append(r)
+    if not args.no_history:
+        with HISTORY.open("a") as f:
+            for r in records:
+                f.write(json.dumps(r) + "\n")
+    return records
+
+
+if __name__ == "__main__":
+    main()

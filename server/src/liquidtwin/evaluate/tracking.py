@@ -1,0 +1,223 @@
+"""``liquidtwin evaluate tracking``: the thesis's Fig. 7.5 table on the generated pouring benchmark.
+
+Every benchmark recording (:mod:`.benchmark`) is replayed through one
+:class:`~liquidtwin.session.SessionEngine` per tracker (:func:`.replay.replay`); each mask frame
+gives the IOU of the model mask against the observed mask *before* that frame's correction.
+Table rows: cup, bottle, 30 %, 60 %, 90 %, overall; a cell is the mean IOU over the row's
+frames whose observed mask has ≥ ``--min-px`` liquid pixels (50), pooled over its cases.
+
+The "ceiling" column is scoring only: the *true* particles (the generator's truth sidecar,
+which no tracker ever sees) drawn with the engine's model mask (projected spheres of the
+model's particle radius, occluded by the objects at their true poses) against the same
+observed masks — what mask noise and drawing alone cost, the best any tracker could score.
+
+A tracker whose session cannot be created (EngineError INFEASIBLE, e.g. a mode not built
+yet) gets "n/a" in its column. Results: ``results.json`` (every case with its seed and
+parameters, every IOU series), ``table.png`` (bars of the table) and ``iou_time.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .benchmark import cases, ensure
+from .cli import add_common
+from .replay import MODES, engine_for, replay
+
+HELP = "closed-loop tracking IOU per tracker on the pouring benchmark (thesis Fig. 7.5)"
+TRACKERS = ("open_loop", "map_filter", "warp_field", "spnets_perception")
+LABELS = {"open_loop": "open loop", "map_filter": "MAP", "warp_field": "warp", "spnets_perception": "SPNets+perc",
+          "ceiling": "ceiling"}
+ROWS = ("cup", "bottle", "30 %", "60 %", "90 %", "overall")
+
+
+def configure(p) -> None:
+    add_common(p, out="eval-tracking")
+    p.add_argument("--trackers", nargs="+", default=list(TRACKERS), choices=list(MODES), metavar="T",
+                   help=f"trackers to compare, from {', '.join(MODES)} (default: all)")
+    p.add_argument("--cases", type=int, default=None, metavar="N", help="only the first N cases (smoke runs)")
+    p.add_argument("--frames", type=int, default=None, metavar="N",
+                   help="only the first N pose samples of each recording (default: all)")
+    p.add_argument("--min-px", type=int, default=50, metavar="PX",
+                   help="frames count only when the observed mask has at least this many liquid px (default: 50)")
+
+
+def table(results: list[dict], columns: list[str], min_px: int) -> dict:
+    """{row: {column: mean IOU or None}} pooled over the row's qualifying frames."""
+    out = {}
+    for row in ROWS:
+        out[row] = {}
+        for col in columns:
+            vals = []
+            for r in results:
+                s = r["series"].get(col)
+                if s is not None and row in _row_of(r["case"]):
+                    vals += [i for i, n in zip(s["iou"], s["observed_px"]) if n >= min_px]
+            out[row][col] = float(np.mean(vals)) if vals else None
+    return out
+
+
+def _row_of(case: dict) -> tuple[str, ...]:
+    return (case["source"], f"{round(case['fraction'] * 100)} %", "overall")
+
+
+def format_table(tab: dict, columns: list[str], min_px: int, note: str) -> str:
+    w = 12
+    lines = ["row".ljust(9) + "".join(LABELS.get(c, c).rjust(w) for c in columns)]
+    for row in ROWS:
+        cells = ["n/a" if tab[row][c] is None else f"{100 * tab[row][c]:.1f} %" for c in columns]
+        lines.append(row.ljust(9) + "".join(x.rjust(w) for x in cells))
+    lines.append(f"mean IOU (model mask vs observed mask, before each correction) over frames whose observed "
+                 f"mask has >= {min_px} px; {note}")
+    return "\n".join(lines)
+
+
+def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = None, *,
+                   disc_px: float | None = None) -> dict:
+    """Scoring only: IOU of the true particles, drawn as the engine draws its model, vs each
+    observed mask of ``camera`` (reads the truth sidecar ``REC.truth.npz``).
+
+    Args:
+      rec: the :class:`~liquidtwin.recordings.Recording` of ``path``; engine: a SessionEngine
+        built for it (its model's objects, particle radius and camera calibration are used).
+      frames: only masks up to the ``frames``-th pose sample (None: all).
+      disc_px: draw fixed discs of this radius, px (SPEC §2's 5 px) instead of projected spheres.
+    Returns:
+      {"t_s": [...] s, "iou": [...], "observed_px": [...]} per mask frame.
+    """
+    import torch
+    from ..camera import model_mask, sphere_coverage, sphere_radius_px, visible
+    from ..camera import iou as mask_iou
+    from ..session.engine import MIN_RADIUS_PX, NEAR_M, OCCLUSION_MARGIN_PX
+    from ..sim import particle_radius
+    truth = np.load(Path(path).with_suffix(".truth.npz"))
+    scene = engine._scene                                   # read only: the model the session draws with
+    objects = [scene.model.objects[k] for k in scene.occluders]
+    radius = particle_radius(float(scene.model.spacing))
+    cam = engine._cameras.camera(camera)
+    stamps, masks = rec.masks[camera]
+    limit = None if frames is None else int(rec.pose_times_ns[min(frames, len(rec.pose_times_ns)) - 1])
+    t0 = int(rec.pose_times_ns[0])
+    out = {"t_s": [], "iou": [], "observed_px": []}
+    pose_stamps = truth["pose_stamps_ns"]
+    for s, m in zip(stamps, masks):
+        if limit is not None and s > limit:
+            break
+        j = int(np.argmin(np.abs(pose_stamps - s)))
+        x = torch.as_tensor(truth["particles"][j], dtype=torch.float64)
+        poses = torch.as_tensor(truth["true_poses"][j], dtype=torch.float64)
+        with torch.no_grad():
+            seen = visible(cam, x, objects, poses[list(scene.occluders)], margin_px=OCCLUSION_MARGIN_PX, near=NEAR_M)
+            uv, depth = cam.project(x)
+            if disc_px is None:
+                r = sphere_radius_px(cam.fx, depth, radius, min_px=MIN_RADIUS_PX)
+                model = sphere_coverage(uv, r, seen, cam.height, cam.width) > 0
+            else:
+                model = model_mask(uv, seen, cam.height, cam.width, float(disc_px))
+        obs = torch.as_tensor(np.asarray(m, bool))
+        out["t_s"].append((int(s) - t0) * 1e-9)
+        out["iou"].append(float(mask_iou(model.cpu(), obs)))
+        out["observed_px"].append(int(obs.sum()))
+    return out
+
+
+def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: bool = True) -> dict:
+    """{tracker or "ceiling": {"t_s", "iou", "observed_px"} or None (tracker not available)}."""
+    from ..recordings import read_recording
+    from ..session.errors import INFEASIBLE, EngineError
+    rec = read_recording(path, images=False)
+    series, notes = {}, {}
+    engine = None
+    for t in trackers:
+        try:
+            engine = engine_for(rec, t)
+        except EngineError as e:
+            if e.code != INFEASIBLE:
+                raise
+            series[t], notes[t] = None, str(e)
+            continue
+        r = replay(rec, engine, frames=frames)
+        series[t] = {"t_s": r.t_s, "iou": r.iou, "observed_px": r.observed_px}
+    if ceiling:
+        engine = engine if engine is not None else engine_for(rec, "open_loop")
+        series["ceiling"] = ceiling_series(rec, path, engine, next(iter(rec.masks)), frames)
+    return {"series": series, "unavailable": notes}
+
+
+def run(args) -> int:
+    from tqdm import tqdm
+    trackers = list(dict.fromkeys(args.trackers))
+    case_list = cases(quick=args.quick, trials=args.trials, base_seed=args.seed)
+    if args.cases is not None:
+        if args.cases < 1:
+            raise SystemExit("--cases must be at least 1")
+        case_list = case_list[:args.cases]
+    if args.frames is not None and args.frames < 2:
+        raise SystemExit("--frames must be at least 2")
+    paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
+    results = []
+    for case, path in tqdm(list(zip(case_list, paths)), desc="replay", unit="case", disable=args.no_progress):
+        r = evaluate_case(path, trackers, frames=args.frames)
+        means = {k: _mean(v, args.min_px) for k, v in r["series"].items()}
+        results.append({"case": case.as_dict(), "recording": str(path), "mean_iou": means, **r})
+    columns = trackers + ["ceiling"]
+    tab = table(results, columns, args.min_px)
+    note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
+            f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else "")
+            + "; ceiling = the true particles drawn as the model (scoring only)")
+    text = format_table(tab, columns, args.min_px, note)
+    print(text)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = {"kind": "tracking", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
+           "frames": args.frames, "min_px": args.min_px, "trackers": trackers, "columns": columns,
+           "table": tab, "table_text": text, "cases": results}
+    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    _plots(out, tab, columns, results, args.min_px)
+    return 0
+
+
+def _mean(s: dict | None, min_px: int) -> float | None:
+    if s is None:
+        return None
+    v = [i for i, n in zip(s["iou"], s["observed_px"]) if n >= min_px]
+    return float(np.mean(v)) if v else None
+
+
+def _plots(out: Path, tab: dict, columns: list[str], results: list[dict], min_px: int) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(9, 4))
+    width = 0.8 / len(columns)
+    for k, c in enumerate(columns):
+        vals = [math.nan if tab[r][c] is None else 100 * tab[r][c] for r in ROWS]
+        ax.bar(np.arange(len(ROWS)) + (k - (len(columns) - 1) / 2) * width, vals, width, label=LABELS.get(c, c),
+               hatch="//" if c == "ceiling" else None, alpha=0.6 if c == "ceiling" else 1.0)
+    ax.set_xticks(np.arange(len(ROWS)), ROWS)
+    ax.set_ylabel(f"mean IOU, % (frames with >= {min_px} observed px)")
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=8, ncols=len(columns))
+    ax.set_title("tracking IOU per tracker (thesis Fig. 7.5)")
+    fig.tight_layout()
+    fig.savefig(out / "table.png", dpi=100)
+    plt.close(fig)
+    shown = results[:4]
+    fig, axes = plt.subplots(len(shown), 1, figsize=(8, 2.2 * len(shown)), squeeze=False)
+    for ax, r in zip(axes[:, 0], shown):
+        for c in columns:
+            s = r["series"].get(c)
+            if s is not None:
+                ax.plot(s["t_s"], s["iou"], label=LABELS.get(c, c), ls="--" if c == "ceiling" else "-")
+        ax.set_title(r["case"]["name"], fontsize=9)
+        ax.set_ylim(0, 1)
+        ax.set_ylabel("IOU")
+    axes[0, 0].legend(fontsize=7, ncols=len(columns))
+    axes[-1, 0].set_xlabel("session time, s")
+    fig.tight_layout()
+    fig.savefig(out / "iou_time.png", dpi=100)
+    plt.close(fig)
