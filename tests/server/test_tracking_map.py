@@ -199,3 +199,34 @@ def test_near_ties_go_to_the_shortest_move():
     got = MapFilter(min_gain=1e-3).choose(score).tolist()
     assert got == [face, corner, 13]
     assert MapFilter(min_gain=0.0).choose(score).tolist() == [corner, corner, 13]
+
+
+def test_covered_liquid_pulls_less_than_uncovered_liquid():
+    """Ψ's coverage weighting (Φ + 1): two equal blobs either side of a particle tie, so it
+    stays; cover one of them with other particles' discs and the particle jumps toward the
+    other one — the brute-force argmax agrees."""
+    cam = _camera()
+    x = torch.zeros(1, 3, dtype=torch.float64)
+    left, right = _blob(cam, [-0.015, 0.0, 0.0], 6.0), _blob(cam, [0.015, 0.0, 0.0], 6.0)
+    obs = _observe(cam, x, left | right)
+    sym = Observation(**{**obs.__dict__, "coverage": torch.zeros_like(obs.coverage)})
+    assert float(MapFilter(CELL).correct(sym).dx.abs().max()) == 0.0
+    for covered, sign in ((left, 1.0), (right, -1.0)):
+        cov = torch.where(covered, 3, 0).to(torch.int32)
+        one = Observation(**{**obs.__dict__, "coverage": cov})
+        dx = MapFilter(CELL).correct(one).dx[0]
+        ref, psi = _brute_choice(cam, one, x[0])
+        torch.testing.assert_close(dx, ref)
+        assert math.isclose(float(dx[0]), sign * CELL), dx          # toward the uncovered blob
+
+
+def test_iterations_walk_several_cells_per_observation():
+    cam = _camera()
+    x = torch.zeros(1, 3, dtype=torch.float64)
+    obs = _observe(cam, x, _blob(cam, [0.03, 0.0, 0.0], 8.0))
+    one = MapFilter(CELL).correct(obs).dx[0]
+    three = MapFilter(CELL, iterations=3).correct(obs).dx[0]
+    assert math.isclose(float(one[0]), CELL)
+    assert math.isclose(float(three[0]), 3 * CELL), three             # three cells toward the liquid
+    with pytest.raises(ValueError):
+        MapFilter(iterations=0)

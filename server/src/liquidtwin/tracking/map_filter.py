@@ -36,7 +36,8 @@ import math
 
 import torch
 
-from ..sim import min_sdf
+from ..camera import sphere_coverage, sphere_radius_px
+from ..sim import min_sdf, particle_radius
 from ._fft import correlate
 from .base import Correction, Observation, Tracker
 from .warp import CUTOFF_PX, LENGTH_PX, image_scale, sample_bilinear
@@ -55,6 +56,8 @@ DEFAULT_VELOCITY_SHARE = 0.0
 #: A hypothesis is only preferred to a shorter move if its normalised Ψ is higher by more than
 #: this (the float32 FFT's rounding is ~1e-7; W at the cut-off is ~1e-4 of its peak).
 DEFAULT_MIN_GAIN = 3e-3
+#: Hypothesis rounds per observation (each from the last round's choice, Φ redrawn).
+DEFAULT_ITERATIONS = 1
 
 
 def se_kernel(length_px: float, cutoff_px: float, dtype=torch.float64, device=None) -> torch.Tensor:
@@ -92,13 +95,18 @@ class MapFilter(Tracker):
       velocity_share: dv = dx / velocity_time_s × this (0: position only).
       velocity_time_s: the camera period, s.
       min_gain: normalised-Ψ margin within which hypotheses tie (the shortest move wins).
+      iterations: rounds of hypotheses per observation; each starts from the previous round's
+        choice with the coverage Φ redrawn there (projected spheres, as the engine draws), so a
+        particle may travel up to ``iterations`` cells per frame.
     """
 
     name = "map_filter"
 
     def __init__(self, cell_m: float = DEFAULT_CELL_M, *, length_px: float = LENGTH_PX, cutoff_px: float = CUTOFF_PX,
                  velocity_share: float = DEFAULT_VELOCITY_SHARE, velocity_time_s: float = 1.0 / 30.0,
-                 min_gain: float = DEFAULT_MIN_GAIN):
+                 min_gain: float = DEFAULT_MIN_GAIN, iterations: int = DEFAULT_ITERATIONS):
+        if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
+            raise ValueError(f"MAP filter iterations must be a whole number >= 1, got {iterations!r}")
         for k, v in (("cell_m", cell_m), ("length_px", length_px), ("cutoff_px", cutoff_px),
                      ("velocity_time_s", velocity_time_s)):
             if not (math.isfinite(v) and v > 0):
@@ -108,7 +116,7 @@ class MapFilter(Tracker):
                 raise ValueError(f"MAP filter {k} must be >= 0, got {v}")
         self.cell_m, self.length_px, self.cutoff_px = float(cell_m), float(length_px), float(cutoff_px)
         self.velocity_share, self.velocity_time_s = float(velocity_share), float(velocity_time_s)
-        self.min_gain = float(min_gain)
+        self.min_gain, self.iterations = float(min_gain), int(iterations)
 
     def psi(self, mask: torch.Tensor, coverage: torch.Tensor) -> torch.Tensor:
         """(H, W) activation Ψ of an observation normalised by Σ_d W (0 far from liquid, 1 in
@@ -119,15 +127,18 @@ class MapFilter(Tracker):
         g = mask.to(torch.float32) / (coverage.to(torch.float32) + 1.0)
         return psi_image(g, ell, cut) / float(se_kernel(ell, cut).sum())
 
-    def scores(self, obs: Observation, vis: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(K, 3) predicted positions of the visible particles ``vis`` (K,) → (hypotheses
-        (K, 27, 3) m, normalised Ψ (K, 27) with −inf where infeasible)."""
+    def scores(self, obs: Observation, vis: torch.Tensor, x: torch.Tensor | None = None,
+               coverage: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Hypotheses around the visible particles ``vis`` (K,) → (hypotheses (K, 27, 3) m,
+        normalised Ψ (K, 27) with −inf where infeasible). ``x`` (K, 3) m and ``coverage``
+        (H, W) replace the observation's positions of those particles and its Φ (iterations)."""
         H, W = obs.mask.shape
-        x = obs.x[vis]
+        x = obs.x[vis] if x is None else x
+        coverage = obs.coverage if coverage is None else coverage
         off = hypothesis_offsets(self.cell_m, x.dtype, x.device)
         hyp = x[:, None, :] + off[None]
         uv, depth = obs.camera.project(hyp.reshape(-1, 3))
-        psi = self.psi(obs.mask, obs.coverage)
+        psi = self.psi(obs.mask, coverage)
         score = sample_bilinear(psi[None], uv.to(psi.dtype))[:, 0].reshape(-1, 27).to(x.dtype)
         ok = ((depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1))
         ok = ok.reshape(-1, 27) & self._outside_objects(obs, x, off)
@@ -169,10 +180,18 @@ class MapFilter(Tracker):
         vis = obs.visible.nonzero().squeeze(1)
         if len(vis) == 0 or not bool(obs.mask.any()):
             return None
-        hyp, score = self.scores(obs, vis)
-        best = self.choose(score)
+        H, W = obs.mask.shape
         rows = torch.arange(len(vis), device=vis.device)
+        x0 = obs.x[vis]
+        x, cov, r_px = x0, obs.coverage, None
+        for it in range(self.iterations):
+            if it > 0:                          # redraw the moved particles as projected spheres
+                uv, depth = obs.camera.project(x)
+                r_px = sphere_radius_px(obs.camera.fx, depth, particle_radius(float(obs.model.spacing)))
+                cov = sphere_coverage(uv, r_px, None, H, W)
+            hyp, score = self.scores(obs, vis, x, cov)
+            x = hyp[rows, self.choose(score)]
         dx = torch.zeros_like(obs.x)
-        dx[vis] = hyp[rows, best] - obs.x[vis]
+        dx[vis] = x - x0
         dv = dx * (self.velocity_share / self.velocity_time_s) if self.velocity_share > 0 else None
         return Correction(dx, dv)

@@ -36,8 +36,8 @@ import math
 
 import torch
 
-from ..camera import Camera
-from ..sim import convsp, find_neighbors
+from ..camera import Camera, sphere_coverage, sphere_radius_px
+from ..sim import convsp, find_neighbors, particle_radius
 from ._fft import correlate
 from .base import Correction, Observation, Tracker
 
@@ -54,6 +54,7 @@ REFERENCE_SIZE = (480, 640)     # (height, width), px
 DEFAULT_GAIN = 600.0
 DEFAULT_VELOCITY_SHARE = 0.2
 DEFAULT_MAX_MOVE = 0.25
+DEFAULT_ITERATIONS = 1
 
 
 def image_scale(height: int, width: int) -> float:
@@ -120,13 +121,14 @@ def lift(camera: Camera, duv: torch.Tensor, depth: torch.Tensor) -> torch.Tensor
     return (duv[:, 0] * z / camera.fx)[:, None] * R[:, 0] + (duv[:, 1] * z / camera.fy)[:, None] * R[:, 1]
 
 
-def sph_smooth(x: torch.Tensor, f: torch.Tensor, h: float) -> torch.Tensor:
+def sph_smooth(x: torch.Tensor, f: torch.Tensor, h: float, *, neighbors=None) -> torch.Tensor:
     """SPH sum f̄_i = Σ_j f_j W_ρ(|x_i − x_j|, h) / ρ_j with unit masses and
     ρ_j = Σ_k W_ρ(|x_j − x_k|, h), both including the particle itself.
-    x: (K, 3) m, f: (K, 3) → (K, 3)."""
+    x: (K, 3) m, f: (K, 3) → (K, 3); ``neighbors``: ``sim.find_neighbors(x, None, h)`` if
+    already known."""
     if len(x) == 0:
         return f
-    nb = find_neighbors(x, None, h)
+    nb = find_neighbors(x, None, h) if neighbors is None else neighbors
     rho = convsp(x, torch.ones_like(x[:, 0]), "rho", h, neighbors=nb, include_self=True)
     return convsp(x, f / rho[:, None], "rho", h, neighbors=nb, include_self=True)
 
@@ -140,14 +142,20 @@ class WarpField(Tracker):
       velocity_share: the velocity change is this share of the position correction spread
         over ``velocity_time_s`` (a camera period): the pull acts as a force too, as in the
         thesis, and keeps acting over the steps to the next frame (0: position only).
-      max_move: cap on a particle's correction per observation, in kernel radii h.
+      max_move: cap on a particle's correction per iteration, in kernel radii h.
+      iterations: corrections per observation; after each, the moved particles are projected
+        again, their coverage Φ redrawn (projected spheres, as the engine draws them) and the
+        field re-evaluated, so a particle can travel further than one capped step while the
+        Φ + 1 weighting keeps spreading the particles over the observed liquid.
     """
 
     name = "warp_field"
 
     def __init__(self, gain: float = DEFAULT_GAIN, *, length_px: float = LENGTH_PX, cutoff_px: float = CUTOFF_PX,
                  velocity_share: float = DEFAULT_VELOCITY_SHARE, velocity_time_s: float = 1.0 / 30.0,
-                 max_move: float = DEFAULT_MAX_MOVE):
+                 max_move: float = DEFAULT_MAX_MOVE, iterations: int = DEFAULT_ITERATIONS):
+        if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
+            raise ValueError(f"warp field iterations must be a whole number >= 1, got {iterations!r}")
         for k, v in (("gain", gain), ("length_px", length_px), ("cutoff_px", cutoff_px),
                      ("velocity_time_s", velocity_time_s), ("max_move", max_move)):
             if not (math.isfinite(v) and v > 0):
@@ -156,7 +164,7 @@ class WarpField(Tracker):
             raise ValueError(f"velocity_share must be >= 0, got {velocity_share}")
         self.gain, self.length_px, self.cutoff_px = float(gain), float(length_px), float(cutoff_px)
         self.velocity_share, self.velocity_time_s = float(velocity_share), float(velocity_time_s)
-        self.max_move = float(max_move)
+        self.max_move, self.iterations = float(max_move), int(iterations)
 
     def field(self, mask: torch.Tensor, coverage: torch.Tensor) -> torch.Tensor:
         """(2, H, W) normalised pull field (px-free) of an observation: mask (H, W) bool,
@@ -172,16 +180,24 @@ class WarpField(Tracker):
         if len(vis) == 0 or not bool(obs.mask.any()):
             return None
         H, W = obs.mask.shape
-        F = self.field(obs.mask, obs.coverage)
-        duv = sample_bilinear(F, obs.uv[vis].to(F.dtype)) * (self.gain * image_scale(H, W))
-        x = obs.x[vis]
-        d3 = lift(obs.camera, duv.to(x.dtype), obs.depth[vis])
-        d3 = sph_smooth(x, d3, obs.model.h)
+        x0 = obs.x[vis]
+        x, uv, cov, depth = x0, obs.uv[vis], obs.coverage, obs.depth[vis]
+        nb = find_neighbors(x0, None, obs.model.h)          # moves stay below h/…: neighbours kept
         cap = self.max_move * obs.model.h
-        norm = d3.norm(dim=1, keepdim=True)
-        d3 = d3 * torch.clamp(cap / norm.clamp(min=1e-12), max=1.0)
+        r_px = None
+        for it in range(self.iterations):
+            if it > 0:                                      # redraw the moved particles (depth unchanged)
+                if r_px is None:
+                    r_px = sphere_radius_px(obs.camera.fx, depth, particle_radius(float(obs.model.spacing)))
+                uv = obs.camera.project(x)[0]
+                cov = sphere_coverage(uv, r_px, None, H, W)
+            F = self.field(obs.mask, cov)
+            duv = sample_bilinear(F, uv.to(F.dtype)) * (self.gain * image_scale(H, W))
+            d3 = sph_smooth(x0, lift(obs.camera, duv.to(x.dtype), depth), obs.model.h, neighbors=nb)
+            norm = d3.norm(dim=1, keepdim=True)
+            x = x + d3 * torch.clamp(cap / norm.clamp(min=1e-12), max=1.0)
         dx = torch.zeros_like(obs.x)
-        dx[vis] = d3
+        dx[vis] = x - x0
         dv = None
         if self.velocity_share > 0:
             dv = dx * (self.velocity_share / self.velocity_time_s)
