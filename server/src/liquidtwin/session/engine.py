@@ -27,7 +27,7 @@ from ..tracking import MapFilter, Observation, OpenLoop, WarpField
 from ._build import build_scene
 from ._checkpoint import engine_state, load_engine_state
 from ._cull import cull_fallen
-from ._volumes import CavityVoxels, held_count_fast
+from ._volumes import CavityVoxels, MaskVolumes, held_count_fast
 from ._cameras import Cameras, check_pose, tilt_from_upright
 from ._task import control_message, make_controller
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
@@ -126,6 +126,11 @@ class SessionEngine:
         self._step_model = dataclasses.replace(scene.model, terms=scene.model.terms + extra) if extra else scene.model
         self._capacity = {n: scene.objects[scene.names.index(n)].capacity_ml for n in scene.containers}
         self._voxels = {n: CavityVoxels(scene.objects[scene.names.index(n)]) for n in scene.containers}
+        # Model-based volumes from the masks alone (SPEC §5): filters per container, in the checkpoint.
+        self._mask_vol = MaskVolumes(scene.names, scene.objects, scene.containers, scene.occluders,
+                                     scene.ml_per_particle * int(scene.state.x.shape[0]),
+                                     float(scene.model.spacing),
+                                     {f.container: float(f.volume_ml) for f in spec.scene.fills})
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -135,6 +140,7 @@ class SessionEngine:
         self._frame_poses = self._scene.initial_poses.copy()
         self._frames = 0
         self._volumes: tuple | None = None
+        self._mask_vol.reset()
         self._task: pb.Task | None = None
         self._pid = None
         self._task_base = 0.0
@@ -244,6 +250,7 @@ class SessionEngine:
                 corr = self._tracker.correct(obs)
                 if corr is not None:
                     self._apply(corr, seen)
+        self._mask_vol.update(self._frames, cam, mask, self._frame_poses)
         return CorrectionResult(ov.iou, 1e3 * (time.perf_counter() - start), ov.image, ov.observed_px,
                                 ov.model_px, ov.overlap_px)
 
@@ -276,6 +283,12 @@ class SessionEngine:
                                             self._voxels[name]) * self._scene.ml_per_particle
             self._volumes = (self._frames, out)
         return dict(self._volumes[1])
+
+    def mask_volumes(self) -> dict:
+        """{container: ml or None}: the model-based estimate from the liquid masks alone (SPEC §5,
+        :class:`~liquidtwin.session._volumes.MaskVolumes`), the median of its volume filter; None
+        until a mask has shown the container's interior."""
+        return self._mask_vol.volumes()
 
     def meshes(self) -> dict:
         """{name: ((V, 3) float32 vertices m object frame, (F, 3) uint32 faces, is_container)}."""
@@ -315,8 +328,11 @@ class SessionEngine:
 
     def state_dict(self) -> dict:
         """Everything that changes (tensors, numbers, strings): torch.load(weights_only=True)."""
-        return engine_state(self)
+        out = engine_state(self)
+        out["mask_volumes"] = self._mask_vol.state_dict()
+        return out
 
     def load_state_dict(self, state: dict) -> None:
         """Continue from :meth:`state_dict` of an engine created from the same spec."""
         load_engine_state(self, state)
+        self._mask_vol.load_state_dict(state.get("mask_volumes", {}))

@@ -19,7 +19,7 @@ from .hmm import VolumeFilter, default_transition, log_likelihood
 
 
 def estimate_series(table: LevelTable, camera, poses, masks, stride: int = 4, filt=None,
-                    occluders=None) -> tuple[np.ndarray, np.ndarray]:
+                    occluders=None, fast: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Filtered volume of ``table.model`` over frames.
 
     Args:
@@ -28,6 +28,7 @@ def estimate_series(table: LevelTable, camera, poses, masks, stride: int = 4, fi
       masks: (T, H, W) bool observed liquid masks. stride: downsampling factor, px.
       filt: :class:`VolumeFilter` over ``table.volumes_ml`` (default: banded transition).
       occluders: optional callable frame index → [(trimesh solid, pose (7,)), …].
+      fast: tilted surface heights from the cavity sample (``LevelTable.heights(fast=True)``).
     Returns:
       (median (T,) ml, posterior (T, K) probabilities).
     """
@@ -41,9 +42,10 @@ def estimate_series(table: LevelTable, camera, poses, masks, stride: int = 4, fi
     med, post = [], []
     for k, (pose, mask) in enumerate(zip(poses, masks)):
         occ = () if occluders is None else occluders(k)
-        e = expected_masks(table, pose, camera, stride, occluders=occ)
+        e = expected_masks(table, pose, camera, stride, occluders=occ, fast=fast)
         belief = filt.update(filt.predict(belief) if k else belief,
-                             log_likelihood(e.liquid, e.interior, downsample_mask(mask, stride)))
+                             log_likelihood(e.liquid, e.interior, downsample_mask(mask, stride),
+                                            fractions=e.fractions))
         med.append(filt.median(belief))
         post.append(filt.probabilities(belief))
     return np.array(med), np.array(post)
@@ -76,7 +78,10 @@ def main(argv=None) -> None:
     ap.add_argument("--camera", default=None)
     ap.add_argument("--stride", type=int, default=4)
     ap.add_argument("--bins", type=int, default=61)
-    ap.add_argument("--max-ml", type=float, default=None, help="top bin, ml (default: capacity)")
+    ap.add_argument("--max-ml", type=float, default=None,
+                    help="top bin, ml (default: 1.2 × the scene's fills, at most the capacity)")
+    ap.add_argument("--min-depth", type=float, default=None,
+                    help="thinnest liquid layer, m (default: the scene's particle spacing)")
     a = ap.parse_args(argv)
     rec = read_recording(a.recording, images=False)
     items = scene_objects(rec.spec, base_dir=a.recording.parent)
@@ -88,8 +93,10 @@ def main(argv=None) -> None:
     camera = Camera.from_calibration(info.K, info.D, info.width, info.height, info.pose)
     stamps, masks = rec.masks[cam_name]
     poses = np.stack([rec.poses_at(int(t)) for t in stamps])          # (M, n, 7)
-    top = model.capacity_ml if a.max_ml is None else a.max_ml
-    table = LevelTable.create(model, np.linspace(0.0, top, a.bins))
+    fills = sum(f.volume_ml for f in rec.spec.fills)
+    top = min(model.capacity_ml, 1.2 * fills if fills > 0 else model.capacity_ml) if a.max_ml is None else a.max_ml
+    depth = rec.spec.simulation.spacing if a.min_depth is None else a.min_depth
+    table = LevelTable.create(model, np.linspace(0.0, top, a.bins), min_depth=depth)
     occ = [k for k, (_, o, _) in enumerate(items) if k != ti and o.cavity is not None]
     med, _ = estimate_series(table, camera, poses[:, ti], masks, a.stride,
                              occluders=lambda f: [(items[k][1].mesh, poses[f, k]) for k in occ])

@@ -39,8 +39,8 @@ from ..geometry.volume import ML_PER_M3
 _TILT_LEVELS = 129
 _BISECT_STEPS = 8                    # bracket (extent / 128) / 2⁸: ~1.5 µm for a 5 cm cavity
 _UPRIGHT_COS = math.cos(1e-4)        # tilts below 0.1 mrad count as upright
+_SAMPLES = 60_000                   # cavity sample points of the fast tilted heights
 _EPS = 1e-7                          # m, ties between the cavity and the solid surfaces
-_MAX_PAIRS = 1 << 21
 
 
 def quat_matrix(q) -> np.ndarray:
@@ -76,18 +76,31 @@ def _plane_volume(cavity: trimesh.Trimesh, n: np.ndarray, s: float) -> float:
 class LevelTable:
     """Liquid surface heights of one container for fixed candidate volumes.
 
+    A liquid cannot spread thinner than ``min_depth`` (a real puddle is a few mm deep; the
+    simulated one is about one particle spacing): a volume v below ``pool_ml`` (what the
+    cavity holds up to ``min_depth`` above its floor) is a pool of that depth covering the
+    fraction v / pool_ml of the area the full pool would, at an unknown place
+    (:attr:`fractions`; :func:`~liquidtwin.volumes.hmm.log_likelihood` places it where it
+    best explains the mask). Without this a shallow pan's 20 ml would be expected as a 0.5 mm
+    film over the whole floor and a real puddle (~10 % of the floor) would read 0 ml.
+
     Attributes:
       model: the container.
       volumes_ml: (K,) candidate volumes, ml, increasing, in [0, capacity].
       upright: (K,) object-frame surface heights y (m) when upright (exact bisection).
+      min_depth: thinnest liquid layer, m (0: a flat film of any thickness).
+      pool_ml: volume of the thinnest layer, ml. fractions: (K,) pool fraction covered (≤ 1).
     """
 
     model: object
     volumes_ml: np.ndarray
     upright: np.ndarray
+    min_depth: float = 0.0
+    pool_ml: float = 0.0
+    fractions: np.ndarray | None = None
 
     @classmethod
-    def create(cls, model, volumes_ml) -> "LevelTable":
+    def create(cls, model, volumes_ml, min_depth: float = 0.0) -> "LevelTable":
         vols = np.asarray(volumes_ml, float).reshape(-1)
         if len(vols) == 0 or not np.isfinite(vols).all():
             raise ValueError("volumes_ml must be a non-empty list of finite volumes in ml")
@@ -98,20 +111,42 @@ class LevelTable:
         if vols[0] < 0 or vols[-1] > model.capacity_ml * (1 + 1e-9):
             raise ValueError(f"{model.name} holds 0 … {model.capacity_ml:.1f} ml; candidate "
                              f"volumes span {vols[0]:.1f} … {vols[-1]:.1f} ml")
-        return cls(model, vols, np.array([model.height_for_volume(v) for v in vols]))
+        if not (math.isfinite(min_depth) and min_depth >= 0):
+            raise ValueError(f"min_depth must be a finite depth >= 0 m, got {min_depth}")
+        pool = 0.0
+        if min_depth > 0:
+            pool = min(model.volume_below_ml(model.floor_height + min_depth), model.capacity_ml)
+        surface = np.maximum(vols, pool)
+        frac = np.ones(len(vols)) if pool <= 0 else np.minimum(vols / pool, 1.0)
+        return cls(model, vols, np.array([model.height_for_volume(v) for v in surface]),
+                   float(min_depth), float(pool), frac)
 
-    def heights(self, pose) -> np.ndarray:
-        """(K,) world heights y (m) of the flat surface for each volume, container at ``pose`` (7,)."""
+    @property
+    def surface_ml(self) -> np.ndarray:
+        """(K,) volumes whose flat surface is drawn: ``volumes_ml``, at least ``pool_ml``."""
+        return np.maximum(self.volumes_ml, self.pool_ml)
+
+    def heights(self, pose, fast: bool = False) -> np.ndarray:
+        """(K,) world heights y (m) of the flat surface for each volume, container at ``pose`` (7,).
+
+        ``fast``: a tilted container's heights from a fixed sample of ~:data:`_SAMPLES` cavity
+        points (the volume below a plane = the points below it × their share of the capacity;
+        ~5 ms instead of ~0.3 s, heights within about a sample cell)."""
         pose = _check_pose(pose)
         n = quat_matrix(pose[3:])[1]                  # world up in the object frame
         if n[1] >= _UPRIGHT_COS:
             return self.upright + pose[1]
+        want = self.surface_ml
+        if fast:
+            proj = np.sort(self._samples() @ n)
+            cum = (np.arange(len(proj)) + 0.5) * (self.model.capacity_ml / len(proj))
+            return np.interp(want, np.r_[0.0, cum], np.r_[proj[0], proj]) + pose[1]
         cav = self.model.cavity
         proj = np.asarray(cav.vertices, float) @ n
         levels = np.linspace(proj.min(), proj.max(), _TILT_LEVELS)
         vol = np.maximum.accumulate([_plane_volume(cav, n, s) * ML_PER_M3 for s in levels])
-        out = np.interp(self.volumes_ml, vol, levels)
-        for k, v in enumerate(self.volumes_ml):           # bisect inside the bracketing levels
+        out = np.interp(want, vol, levels)
+        for k, v in enumerate(want):                      # bisect inside the bracketing levels
             i = int(np.searchsorted(vol, v))
             if v <= 0 or i == 0 or i >= len(levels):
                 continue
@@ -121,6 +156,18 @@ class LevelTable:
                 lo, hi = (mid, hi) if _plane_volume(cav, n, mid) * ML_PER_M3 < v else (lo, mid)
             out[k] = 0.5 * (lo + hi)
         return out + pose[1]
+
+    def _samples(self) -> np.ndarray:
+        """(S, 3) object-frame cell centres inside the cavity (built once)."""
+        pts = self.__dict__.get("_pts")
+        if pts is None:
+            lo, hi = np.asarray(self.model.cavity.bounds, float)
+            cell = (np.prod(hi - lo) / _SAMPLES) ** (1 / 3)
+            axes = [np.arange(lo[i] + cell / 2, hi[i], cell) for i in range(3)]
+            pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+            pts = pts[self.model.in_cavity(pts)]
+            object.__setattr__(self, "_pts", pts)
+        return pts
 
 
 def pixel_rays(camera, stride: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
@@ -158,6 +205,63 @@ def _slab(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.nd
     return (tmax >= np.maximum(tmin, 0.0))
 
 
+def _gnomonic(v: np.ndarray, axis: np.ndarray, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directions/offsets v (N, 3) → ((N, 2) plane coordinates v·b / v·axis, (N,) v·axis)."""
+    z = v @ axis
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (v @ basis.T) / z[:, None], z
+
+
+def _ray_triangle_pairs(ol: np.ndarray, dl: np.ndarray, rays: np.ndarray, tri: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate (ray, triangle) pairs: every ray in ``rays`` shares the origin ``ol``, so a ray
+    can only cross a triangle whose central (gnomonic) projection contains the ray's: rays are
+    binned on a grid in that projection and each triangle meets the rays of the bins its
+    projected bounding box covers. Triangles reaching behind the origin meet every ray."""
+    if len(rays) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    axis = dl[rays].mean(0)
+    axis /= np.linalg.norm(axis)
+    helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
+    b0 = np.cross(axis, helper)
+    b0 /= np.linalg.norm(b0)
+    basis = np.stack([b0, np.cross(axis, b0)])
+    rp, rz = _gnomonic(dl[rays], axis, basis)
+    ok_r = rz > 1e-6                                          # rays ahead (a camera's always are)
+    lo, hi = rp[ok_r].min(0), rp[ok_r].max(0)
+    n_side = max(1, int(math.sqrt(ok_r.sum())))
+    cell = np.maximum((hi - lo) / n_side, 1e-12)
+    nb = np.array([n_side, n_side])
+    rb = np.clip(((rp - lo) / cell).astype(np.int64), 0, n_side - 1)
+    rbin = np.where(ok_r, rb[:, 1] * n_side + rb[:, 0], -1)
+    order = np.argsort(rbin, kind="stable")
+    counts = np.bincount(rbin[ok_r], minlength=n_side * n_side)
+    start = np.concatenate([[0], np.cumsum(counts)]) + int((~ok_r).sum())
+    vp, vz = _gnomonic(tri.reshape(-1, 3) - ol, axis, basis)
+    vp, vz = vp.reshape(-1, 3, 2), vz.reshape(-1, 3)
+    ahead = (vz > 1e-9).all(1)
+    tlo = np.floor((vp.min(1) - lo) / cell - 1e-6).astype(np.int64)    # the projected
+    thi = np.floor((vp.max(1) - lo) / cell + 1e-6).astype(np.int64)    # triangle is exact
+    tlo, thi = np.clip(tlo, 0, nb - 1), np.clip(thi, 0, nb - 1)
+    live = ahead & (vp.max(1) >= lo - cell).all(1) & (vp.min(1) <= hi + cell).all(1)
+    t_idx = np.nonzero(live)[0]
+    wx, wy = thi[t_idx, 0] - tlo[t_idx, 0] + 1, thi[t_idx, 1] - tlo[t_idx, 1] + 1
+    nbins = wx * wy
+    pt = np.repeat(t_idx, nbins)
+    k = np.arange(nbins.sum()) - np.repeat(np.cumsum(nbins) - nbins, nbins)
+    wxr = np.repeat(wx, nbins)
+    bins = (tlo[pt, 1] + k // wxr) * n_side + tlo[pt, 0] + k % wxr
+    c = counts[bins]
+    pt = np.repeat(pt, c)
+    j = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c)
+    pr = order[np.repeat(start[bins], c) + j]
+    behind = np.nonzero(~ahead)[0]                            # rare: brute force
+    if len(behind):
+        pr = np.concatenate([pr, np.repeat(np.arange(len(rays)), len(behind))])
+        pt = np.concatenate([pt, np.tile(behind, len(rays))])
+    return rays[pr], pt
+
+
 def crossings(o: np.ndarray, d: np.ndarray, mesh: trimesh.Trimesh, pose) -> np.ndarray:
     """Every crossing of rays with a mesh placed at ``pose``.
 
@@ -173,34 +277,30 @@ def crossings(o: np.ndarray, d: np.ndarray, mesh: trimesh.Trimesh, pose) -> np.n
     b = np.asarray(mesh.bounds, float)
     rays = np.nonzero(_slab(ol, dl, b[0] - 1e-6, b[1] + 1e-6))[0]
     tri = np.asarray(mesh.vertices, float)[np.asarray(mesh.faces)]
-    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    pr, pt = _ray_triangle_pairs(ol, dl, rays, tri)
+    a, e1, e2 = tri[pt, 0], tri[pt, 1] - tri[pt, 0], tri[pt, 2] - tri[pt, 0]
+    dd = dl[pr]
     tv = ol - a
+    p = np.cross(dd, e2)
     qv = np.cross(tv, e1)
-    hits = []
-    step = max(1, _MAX_PAIRS // max(1, len(tri)))
-    for s in range(0, len(rays), step):
-        dd = dl[rays[s:s + step], None, :]
-        p = np.cross(dd, e2)
-        det = (p * e1).sum(-1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = (tv * p).sum(-1) / det
-            v = (dd * qv).sum(-1) / det
-            t = np.broadcast_to((e2 * qv).sum(-1), det.shape) / det
-        ok = (np.abs(det) > 1e-18) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
-        hits.append(np.sort(np.where(ok, t, np.inf), 1))
-    out = np.full((len(d), 1), np.inf)
-    if not hits:
-        return out
-    m = max(int(np.isfinite(h).sum(1).max()) for h in hits)
-    if m == 0:
-        return out
-    t = np.concatenate([h[:, :m] for h in hits])
-    dup = np.zeros_like(t, bool)
-    with np.errstate(invalid="ignore"):
-        dup[:, 1:] = np.abs(np.diff(t, axis=1)) < 1e-9
-    t = np.sort(np.where(dup, np.inf, t), 1)
-    out = np.full((len(d), t.shape[1]), np.inf)
-    out[rays] = t
+    det = (p * e1).sum(-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = (tv * p).sum(-1) / det
+        v = (dd * qv).sum(-1) / det
+        t = (e2 * qv).sum(-1) / det
+    ok = (np.abs(det) > 1e-18) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+    hr, ht = pr[ok], t[ok]
+    if len(hr) == 0:
+        return np.full((len(d), 1), np.inf)
+    order = np.lexsort((ht, hr))
+    hr, ht = hr[order], ht[order]
+    dup = np.zeros(len(hr), bool)
+    dup[1:] = (hr[1:] == hr[:-1]) & (np.abs(np.diff(ht)) < 1e-9)
+    hr, ht = hr[~dup], ht[~dup]
+    cnt = np.bincount(hr, minlength=len(d))
+    rank = np.arange(len(hr)) - (np.cumsum(cnt) - cnt)[hr]
+    out = np.full((len(d), int(cnt.max())), np.inf)
+    out[hr, rank] = ht
     return out
 
 
@@ -213,30 +313,49 @@ class ExpectedMasks:
       interior: (h, w) bool, blocks whose ray sees the cavity (only these are scored).
       heights: (K,) world surface heights y, m.
       stride: downsampling factor, px.
+      fractions: (K,) share of each liquid mask the liquid covers, at an unknown place
+        (:attr:`LevelTable.fractions`; 1: all of it).
     """
 
     liquid: np.ndarray
     interior: np.ndarray
     heights: np.ndarray
     stride: int
+    fractions: np.ndarray | None = None
+
+
+def container_hits(model, pose, rays, opaque: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The per-pose ray casts of :func:`expected_masks`: ((R, M) crossings with ``model``'s
+    cavity, (R,) distance to its own solid — inf when ``opaque`` is False), m; ``rays`` as
+    :func:`pixel_rays` returns them. Cache them while the container and camera stand still."""
+    o, d, _ = rays
+    cav = crossings(o, d, model.cavity, pose)
+    own = crossings(o, d, model.mesh, pose)[:, 0] if opaque else np.full(len(d), np.inf)
+    return cav, own
 
 
 def expected_masks(table: LevelTable, pose, camera, stride: int = 4,
-                   occluders=(), opaque: bool = True) -> ExpectedMasks:
+                   occluders=(), opaque: bool = True, fast: bool = False, rays=None,
+                   hits=None) -> ExpectedMasks:
     """Expected liquid masks of ``table.model`` at ``pose`` (7,) for each of ``table.volumes_ml``.
 
     Args:
       camera: :class:`~liquidtwin.camera.Camera`. stride: downsampling factor (px, ≥ 1).
       occluders: extra (trimesh.Trimesh solid, pose (7,)) pairs that hide the container.
       opaque: the container's own walls hide what lies behind them (False: a glass container).
+      fast: tilted heights from the cavity sample (:meth:`LevelTable.heights`).
+      rays: ``pixel_rays(camera, stride)`` when the caller keeps them.
+      hits: ``container_hits(table.model, pose, rays, opaque)`` when the caller keeps them.
     """
     model = table.model
-    o, d, (h, w) = pixel_rays(camera, stride)
-    heights = table.heights(pose)
-    cav = crossings(o, d, model.cavity, pose)
-    occ = np.full(len(d), np.inf)
-    for mesh, p in (((model.mesh, pose),) if opaque else ()) + tuple(occluders):
-        occ = np.minimum(occ, crossings(o, d, mesh, p)[:, 0])
+    rays = pixel_rays(camera, stride) if rays is None else rays
+    o, d, (h, w) = rays
+    heights = table.heights(pose, fast=fast)
+    cav, occ = container_hits(model, pose, rays, opaque) if hits is None else hits
+    seen = np.nonzero(np.isfinite(cav[:, 0]) & (cav[:, 0] < occ - _EPS))[0]
+    occ = occ.copy()
+    for mesh, p in tuple(occluders):                          # only rays that reach the cavity
+        occ[seen] = np.minimum(occ[seen], crossings(o, d[seen], mesh, p)[:, 0])
     n = cav.shape[1] // 2
     a, b = cav[:, 0:2 * n:2], cav[:, 1:2 * n:2]              # (R, n) inside intervals
     interior = np.isfinite(a[:, 0]) & (a[:, 0] < occ - _EPS)
@@ -251,7 +370,8 @@ def expected_masks(table: LevelTable, pose, camera, stride: int = 4,
     ok = (lo < hi) & np.isfinite(a)[None] & ~level
     entry = np.where(ok, lo, np.inf).min(-1)                  # (K, R)
     liquid = entry < occ[None] - _EPS
-    return ExpectedMasks(liquid.reshape(-1, h, w), interior.reshape(h, w), heights, int(stride))
+    return ExpectedMasks(liquid.reshape(-1, h, w), interior.reshape(h, w), heights, int(stride),
+                         table.fractions)
 
 
 def downsample_mask(mask: np.ndarray, stride: int) -> np.ndarray:

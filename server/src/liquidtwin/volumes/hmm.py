@@ -28,13 +28,18 @@ P_LIQUID_IF_DRY = 0.2
 
 
 def log_likelihood(expected_liquid: np.ndarray, interior: np.ndarray, observed: np.ndarray,
-                   p_hit: float = P_LIQUID_IF_LIQUID, p_false: float = P_LIQUID_IF_DRY) -> np.ndarray:
+                   p_hit: float = P_LIQUID_IF_LIQUID, p_false: float = P_LIQUID_IF_DRY,
+                   fractions=None) -> np.ndarray:
     """(K,) log P(observed mask | volume bin k).
 
     Args:
       expected_liquid: (K, h, w) bool expected masks. interior: (h, w) bool scored blocks.
       observed: (h, w) bool observed liquid mask on the same grid.
       p_hit: P(observed liquid | expected liquid). p_false: P(observed liquid | expected dry).
+      fractions: (K,) optional share f_k ≤ 1 of mask k the liquid covers at an unknown place
+        (a pool thinner than it can spread, :class:`~liquidtwin.volumes.LevelTable`): n_k =
+        round(f_k · |mask k|) expected blocks, placed where they best explain the observation
+        (on observed liquid inside mask k first) — the place is maximised out.
     """
     e = np.asarray(expected_liquid, bool)
     interior, observed = np.asarray(interior, bool), np.asarray(observed, bool)
@@ -45,10 +50,17 @@ def log_likelihood(expected_liquid: np.ndarray, interior: np.ndarray, observed: 
         raise ValueError(f"pixel probabilities must lie in (0, 1), got {p_hit}, {p_false}")
     ei = e[:, interior]                                  # (K, P)
     oi = observed[interior]                              # (P,)
-    n11 = (ei & oi).sum(1)
-    n01 = (ei & ~oi).sum(1)
-    n10 = (~ei & oi).sum(1)
-    n00 = (~ei & ~oi).sum(1)
+    hit = (ei & oi).sum(1)
+    n_exp = ei.sum(1)
+    if fractions is not None:
+        f = np.asarray(fractions, float).reshape(-1)
+        if f.shape != (len(e),) or not ((f >= 0) & (f <= 1)).all():
+            raise ValueError(f"fractions must be ({len(e)},) values in [0, 1]")
+        n_exp = np.rint(f * n_exp).astype(np.int64)
+    n11 = np.minimum(hit, n_exp)
+    n01 = n_exp - n11
+    n10 = oi.sum() - n11
+    n00 = len(oi) - n11 - n01 - n10
     return (n11 * np.log(p_hit) + n01 * np.log1p(-p_hit)
             + n10 * np.log(p_false) + n00 * np.log1p(-p_false)).astype(float)
 
@@ -75,13 +87,15 @@ def default_transition(n_bins: int, floor: float = 1e-6) -> np.ndarray:
     return _normalise_rows(T)
 
 
-def learn_transition(volume_series_list, bins, prior: float = 0.01) -> np.ndarray:
+def learn_transition(volume_series_list, bins, prior: float = 0.01, pooled: float = 0.0) -> np.ndarray:
     """(K, K) transition estimated from true volume series.
 
     Args:
       volume_series_list: iterable of (T_i,) volume series, ml, sampled at the filter's rate.
       bins: (K,) bin volumes, ml; each volume goes to its nearest bin.
       prior: pseudo-count added to every entry (rows never seen become uniform).
+      pooled: pseudo-counts per row spread like the bin changes j − i of all rows together
+        (a stationary kernel): shrinks rows seen a few times towards the common behaviour.
     """
     bins = _check_bins(bins)
     if not prior > 0:
@@ -94,6 +108,12 @@ def learn_transition(volume_series_list, bins, prior: float = 0.01) -> np.ndarra
             raise ValueError("volume series contain NaN or inf")
         k = np.searchsorted(edges, s)
         np.add.at(counts, (k[:-1], k[1:]), 1.0)
+    if pooled > 0:
+        n = len(bins)
+        i, j = np.indices(counts.shape)
+        kernel = np.bincount((j - i + n - 1).ravel(), weights=(counts - prior).ravel(), minlength=2 * n - 1)
+        kernel = (kernel + prior) / (kernel + prior).sum()
+        counts += pooled * _normalise_rows(kernel[j - i + n - 1])
     return _normalise_rows(counts)
 
 
