@@ -26,7 +26,9 @@ class StreamSummary:
             (``max`` rate only; in ``realtime`` the server may drop frames instead).
         mean_iou: mean Metrics.iou over frames that had a mask (None when none had).
         iou_frames: how many metrics carried a finite IOU.
-        final_volumes_ml: {container: ml} of the last Volumes output.
+        final_volumes_ml: {container: ml} of the last Volumes output (particle count).
+        final_mask_volumes_ml: {container: ml} of its model-based estimates (``mask_ml``,
+            from the masks alone; containers whose mask estimate is unset are left out).
         latency_ms_p50, latency_ms_p99, latency_ms_max: publish of a frame's poses →
             receipt of its particles, ms (None when no frame was answered).
         dropped_stale, dropped_out_of_order, rejected: the server's counters from the last
@@ -55,6 +57,7 @@ class StreamSummary:
     outputs: dict[str, int] = field(default_factory=dict)
     lost_outputs: int = 0
     wall_s: float = 0.0
+    final_mask_volumes_ml: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict:
         """A JSON-ready dict of every field."""
@@ -70,6 +73,7 @@ class Tally:
         self.timed_out = 0
         self.ious: list[float] = []
         self.volumes: dict[str, float] = {}
+        self.mask_volumes: dict[str, float] = {}
         self.counters = {"dropped_stale": 0, "dropped_out_of_order": 0, "rejected": 0}
         self.outputs: dict[str, int] = {}
         self._volume_stamp = -1
@@ -95,6 +99,7 @@ class Tally:
         elif out.stream == "volumes" and stamp >= self._volume_stamp:
             self._volume_stamp = stamp
             self.volumes = {c.name: float(c.ml) for c in out.message.containers}
+            self.mask_volumes = {c.name: float(c.mask_ml) for c in out.message.containers if c.HasField("mask_ml")}
 
     def is_answered(self, stamp_ns: int) -> bool:
         """True once particles for frame ``stamp_ns`` arrived."""
@@ -120,7 +125,7 @@ class Tally:
             latency_ms_p50=pct(50), latency_ms_p99=pct(99),
             latency_ms_max=float(lat.max()) if lat.size else None,
             outputs=dict(sorted(self.outputs.items())), lost_outputs=int(lost_outputs),
-            wall_s=float(wall_s), **self.counters)
+            wall_s=float(wall_s), final_mask_volumes_ml=dict(self.mask_volumes), **self.counters)
 
 
 def format_table(s: StreamSummary) -> str:
@@ -135,7 +140,8 @@ def format_table(s: StreamSummary) -> str:
         ("mean IOU", f"{num(s.mean_iou, '.3f')}  ({s.iou_frames} frames with a mask)"),
     ]
     for name, ml in sorted(s.final_volumes_ml.items()):
-        rows.append((f"final volume {name}", f"{ml:.2f} ml"))
+        m = s.final_mask_volumes_ml.get(name)
+        rows.append((f"final volume {name}", f"{ml:.2f} ml particles, {num(m, '.2f')} ml from masks"))
     rows += [
         ("latency publish→particles", f"p50 {num(s.latency_ms_p50, '.1f')} ms, "
          f"p99 {num(s.latency_ms_p99, '.1f')} ms, max {num(s.latency_ms_max, '.1f')} ms"),

@@ -44,17 +44,23 @@ def particles_cloud(positions: np.ndarray, speeds: np.ndarray, stamp_ns: int) ->
     return msg
 
 
-def volumes_message(header: Header, volumes: dict) -> Volumes:
-    """Volumes of {container: ml}."""
+def volumes_message(header: Header, volumes: dict, mask_volumes: dict | None = None) -> Volumes:
+    """Volumes of {container: ml}; ``mask_volumes`` {container: ml or None} fills ``mask_ml``
+    (the model-based estimate, SPEC §5; left unset for None)."""
     msg = Volumes(header=header)
-    for name, ml in volumes.items():
-        msg.containers.add(name=name, ml=float(ml))
+    msg.containers.extend(container_volumes(volumes, mask_volumes))
     return msg
 
 
-def container_volumes(volumes: dict) -> list[ContainerVolume]:
-    """[ContainerVolume] of {container: ml} (for SessionStatus)."""
-    return [ContainerVolume(name=n, ml=float(v)) for n, v in volumes.items()]
+def container_volumes(volumes: dict, mask_volumes: dict | None = None) -> list[ContainerVolume]:
+    """[ContainerVolume] of {container: ml} (for SessionStatus), with ``mask_ml`` from
+    ``mask_volumes`` {container: ml or None} where it is known."""
+    out = []
+    for n, v in volumes.items():
+        m = (mask_volumes or {}).get(n)
+        out.append(ContainerVolume(name=n, ml=float(v)) if m is None else
+                   ContainerVolume(name=n, ml=float(v), mask_ml=float(m)))
+    return out
 
 
 def overlay_image(rgb: np.ndarray, camera: str, stamp_ns: int) -> RawImage:

@@ -151,11 +151,12 @@ class ServedSession:
                 except EngineError as exc:
                     self._reject("mask", exc, "mask_unusable")
             pos, speed, vols = eng.positions(), eng.speeds(), eng.volumes()
+            mask_vols = eng.mask_volumes()          # issue 5: model-based estimate → ContainerVolume.mask_ml
             control = eng.control()
             particles = eng.n_particles
             self._dirty = True
         self.inbox.count("frames_done")
-        out = [("particles", particles_cloud(pos, speed, stamp)), ("volumes", volumes_message(self._header(stamp), vols))]
+        out = [("particles", particles_cloud(pos, speed, stamp)), ("volumes", volumes_message(self._header(stamp), vols, mask_vols))]
         if corr is not None:
             out.append(("overlay", overlay_image(corr.overlay, frame.mask[0], stamp)))
         if control is not None:
@@ -212,12 +213,13 @@ class ServedSession:
         with self.lock:
             try:
                 vols = self.engine.volumes() if not self.closed and not self.failed else {}
+                mask_vols = self.engine.mask_volumes() if vols else {}      # issue 5: mask_ml
             except Exception:  # noqa: BLE001 - a status must answer even when the engine cannot
                 _log.exception("session %s: volumes for its status failed", self.id)
-                vols = {}
+                vols, mask_vols = {}, {}
             st = SessionStatus(session_id=self.id, state=self.state, spec=self.spec,
                                sim_time_s=self.engine.sim_time_s, particles=self.engine.n_particles,
-                               volumes=container_volumes(vols), log_path=str(self.log.path),
+                               volumes=container_volumes(vols, mask_vols), log_path=str(self.log.path),
                                checkpoint_path=str(self.dir / "checkpoint.pt"), restored=self.restored,
                                server_id=server_id)
         st.header.CopyFrom(Header(session_id=self.id, stamp_ns=now_ns(), version=PROTOCOL_VERSION))
