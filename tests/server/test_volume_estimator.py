@@ -9,9 +9,10 @@ import torch
 from liquidtwin.camera import Camera
 from liquidtwin.geometry import cup
 from liquidtwin.sim.sdf import quat_from_axis_angle
-from liquidtwin.volumes import (LevelTable, VolumeFilter, default_transition, downsample_mask,
-                                estimate_series, expected_masks, learn_transition, log_likelihood,
-                                quat_matrix)
+from liquidtwin.volumes import (U_BINS, LevelTable, VolumeFilter, crossings, default_transition,
+                                downsample_mask, estimate_series, expected_masks, learn_transition,
+                                load_transition, log_likelihood, pixel_rays, quat_matrix,
+                                scaled_transition)
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 R = 0.035                                    # straight cup: cavity radius (72-gon), m
@@ -191,3 +192,94 @@ def test_estimate_series_settles_on_a_still_volume(tapered, oblique):
     assert abs(med[-1] - 200.0) <= table.volumes_ml[1]
     with pytest.raises(ValueError, match="same T"):
         estimate_series(table, cam, np.tile(UPRIGHT, (3, 1)), masks, stride=2)
+
+
+def _brute_crossings(o, d, mesh, pose):
+    """Reference: every triangle against every ray (no culling), sorted, coincident hits once."""
+    Rm = quat_matrix(pose[3:])
+    ol, dl = (o - pose[:3]) @ Rm, d @ Rm
+    tri = np.asarray(mesh.vertices, float)[np.asarray(mesh.faces)]
+    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    out = []
+    for dd in dl:
+        p = np.cross(dd, e2)
+        det = (p * e1).sum(-1)
+        tv = ol - a
+        qv = np.cross(tv, e1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v, t = (tv * p).sum(-1) / det, (qv * dd).sum(-1) / det, (e2 * qv).sum(-1) / det
+        ts = np.sort(t[(np.abs(det) > 1e-18) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)])
+        out.append(ts[np.r_[True, np.diff(ts) >= 1e-9]] if len(ts) else ts)
+    return out
+
+
+@pytest.mark.parametrize("eye", [[0.12, 0.25, 0.03], [0.0, 0.03, 0.0]])    # outside; inside the cup
+def test_binned_crossings_equal_brute_force(tapered, eye):
+    """The central-projection binning finds exactly the crossings of all-pairs Möller–Trumbore,
+    for a tilted cup seen from outside and from a camera inside it (triangles behind it)."""
+    cam = Camera.look_at(eye, [0.02, 0.0, 0.0], width=64, height=48, fov_y_deg=70)
+    q = quat_from_axis_angle(torch.tensor([0.0, 0, 1]), torch.tensor(0.3)).numpy()
+    pose = np.r_[0.01, 0.0, 0.0, q]
+    o, d, _ = pixel_rays(cam, 2)
+    for mesh in (tapered.cavity, tapered.mesh):
+        got = crossings(o, d, mesh, pose)
+        want = _brute_crossings(o, d, mesh, pose)
+        assert sum(len(w) for w in want) > 50
+        for g, w in zip(got, want):
+            np.testing.assert_allclose(g[np.isfinite(g)], w, rtol=0, atol=1e-12)
+
+
+def test_shallow_pool_covers_a_fraction_and_the_likelihood_finds_it(straight):
+    """Straight cup from above, min depth 4 mm: the pool holds π r² · 4 mm (the 72-gon's
+    area); a volume below it is expected as the full pool disc covering v / pool of it, and
+    an observed blob of 30 % of the disc (placed anywhere in it) peaks at 0.3 · pool."""
+    depth = 0.004
+    area = straight.capacity_ml * 1e-6 / (straight.rim_height - straight.floor_height)
+    vols = np.linspace(0.0, 40.0, 81)
+    table = LevelTable.create(straight, vols, min_depth=depth)
+    assert table.pool_ml == pytest.approx(area * depth * 1e6, rel=1e-6)
+    np.testing.assert_allclose(table.fractions, np.minimum(vols / table.pool_ml, 1.0))
+    cam = Camera.look_at([0.0, 0.5, 0.001], [0.0, 0.0, 0.0], width=120, height=120, fov_y_deg=12)
+    e = expected_masks(table, UPRIGHT, cam, stride=2)
+    pool = e.liquid[np.searchsorted(vols, table.pool_ml)]
+    for k in np.nonzero(vols < table.pool_ml)[0]:
+        np.testing.assert_array_equal(e.liquid[k], pool if vols[k] > 0 else e.liquid[k])
+    cells = np.argwhere(pool)
+    order = np.argsort(cells[:, 1] + 0.3 * cells[:, 0])         # a blob on one side of the disc
+    obs = np.zeros_like(pool)
+    n = int(round(0.3 * len(cells)))
+    obs[tuple(cells[order[:n]].T)] = True
+    ll = log_likelihood(e.liquid, e.interior, obs, fractions=e.fractions)
+    best = vols[int(np.argmax(ll))]
+    print(f"\npool {table.pool_ml:.2f} ml, {len(cells)} blocks; blob of {n}: best {best:.2f} ml")
+    assert abs(best - 0.3 * table.pool_ml) <= vols[1]
+    flat = log_likelihood(e.liquid, e.interior, obs)              # without: a film over the floor
+    assert vols[int(np.argmax(flat))] == 0.0
+
+
+def test_pooled_transition_fills_unseen_rows_with_the_shared_steps():
+    bins = np.arange(10.0)
+    series = [np.array([0, 0, 1, 1, 2, 2, 3, 3, 4, 4], float)]        # stay or +1, rows 0..4 only
+    T = learn_transition(series, bins, prior=1e-9, pooled=10.0)
+    np.testing.assert_allclose(T.sum(1), 1.0)
+    for i in range(6, 9):                                             # unseen: the kernel (stay 5, +1 4)
+        assert T[i, i] == pytest.approx(5 / 9, abs=1e-6) and T[i, i + 1] == pytest.approx(4 / 9, abs=1e-6)
+    assert T[9, 9] == pytest.approx(1.0, abs=1e-6)                    # the top bin cannot rise
+    assert T[0, 0] == pytest.approx((1 + 10 * 5 / 9) / 12, abs=1e-6)  # row 0: 1 stay + 1 up + pooled
+
+
+def test_shipped_transition_scales_to_a_session(tmp_path):
+    u, T = load_transition()
+    np.testing.assert_allclose(u, U_BINS) and np.testing.assert_allclose(T.sum(1), 1.0)
+    bins, Ts = scaled_transition(50.0, 40.0)
+    assert bins[-1] <= 40.0 and np.allclose(bins, U_BINS[:len(bins)] * 50.0) and len(bins) == 41
+    np.testing.assert_allclose(Ts.sum(1), 1.0)
+    assert Ts.min() > 0 and Ts[10, 10] > 0.3                          # it mostly stays
+    bins, Ts = scaled_transition(1000.0, 30.0)                        # far smaller than the liquid
+    assert bins[-1] == 30.0 and Ts.shape == (21, 21)
+    np.savez(tmp_path / "bad.npz", u_bins=np.arange(3.0), transition=np.ones((3, 3)))
+    with pytest.raises(ValueError, match="not a volume transition"):
+        load_transition(tmp_path / "bad.npz")
+    np.savez(tmp_path / "p.npz", u_bins=np.array([{"a": 1}], dtype=object), transition=np.eye(1))
+    with pytest.raises(ValueError, match="pickle"):                   # loaded without pickle
+        load_transition(tmp_path / "p.npz")

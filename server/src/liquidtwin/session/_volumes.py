@@ -67,11 +67,6 @@ def held_count_fast(model, state, index: int, obj: ObjectModel, voxels: CavityVo
 # ---------------------------------------------------------------------- model-based volumes
 #: The session's mask grid is about this many blocks across (stride = width / this, ≥ 1 px).
 BLOCKS_ACROSS = 80
-#: Thinnest liquid layer, in particle spacings (a pool shallower than this covers part of the
-#: floor: :class:`~liquidtwin.volumes.LevelTable`). A settled monolayer of the model's
-#: particles is about this deep as the masks see it (golden dump pour: 1.0 spacing read the
-#: 21 ml puddle as 26 ml).
-MIN_DEPTH_SPACINGS = 0.8
 #: A container counts as still (its cached ray casts reused) within this move, m / rad.
 STILL_M, STILL_RAD = 5e-4, 2e-3
 #: Share of the initial belief spread evenly over all bins (the rest sits on the stated fill).
@@ -105,7 +100,7 @@ class MaskVolumes:
     """
 
     def __init__(self, names, objects, containers, occluders, total_ml: float, spacing: float, fills: dict):
-        from ..volumes import LevelTable, VolumeFilter, scaled_transition
+        from ..volumes import MIN_DEPTH_SPACINGS, LevelTable, VolumeFilter, scaled_transition
         self._names = tuple(names)
         self._tables, self._filters, self._prior = {}, {}, {}
         for name in containers:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .expected import LevelTable, downsample_mask, expected_masks, quat_matrix
+from .expected import MIN_DEPTH_SPACINGS, LevelTable, downsample_mask, expected_masks, quat_matrix
 from .hmm import VolumeFilter, default_transition, log_likelihood
 
 
@@ -70,7 +70,7 @@ def _true_ml(path: Path, model, target: int, stamps: np.ndarray) -> np.ndarray |
 def main(argv=None) -> None:
     from ..camera import Camera
     from ..recordings import read_recording
-    from ..scenes.spec import scene_objects
+    from ..scenes.spec import scene_objects, simulation_settings
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("recording", type=Path)
@@ -81,7 +81,7 @@ def main(argv=None) -> None:
     ap.add_argument("--max-ml", type=float, default=None,
                     help="top bin, ml (default: 1.2 × the scene's fills, at most the capacity)")
     ap.add_argument("--min-depth", type=float, default=None,
-                    help="thinnest liquid layer, m (default: the scene's particle spacing)")
+                    help="thinnest liquid layer, m (default: MIN_DEPTH_SPACINGS × the scene's particle spacing)")
     a = ap.parse_args(argv)
     rec = read_recording(a.recording, images=False)
     items = scene_objects(rec.spec, base_dir=a.recording.parent)
@@ -95,7 +95,7 @@ def main(argv=None) -> None:
     poses = np.stack([rec.poses_at(int(t)) for t in stamps])          # (M, n, 7)
     fills = sum(f.volume_ml for f in rec.spec.fills)
     top = min(model.capacity_ml, 1.2 * fills if fills > 0 else model.capacity_ml) if a.max_ml is None else a.max_ml
-    depth = rec.spec.simulation.spacing if a.min_depth is None else a.min_depth
+    depth = MIN_DEPTH_SPACINGS * simulation_settings(rec.spec)["spacing"] if a.min_depth is None else a.min_depth
     table = LevelTable.create(model, np.linspace(0.0, top, a.bins), min_depth=depth)
     occ = [k for k, (_, o, _) in enumerate(items) if k != ti and o.cavity is not None]
     med, _ = estimate_series(table, camera, poses[:, ti], masks, a.stride,
