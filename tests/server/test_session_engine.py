@@ -214,7 +214,7 @@ def test_tasks_and_control(rec):
 
 
 @pytest.mark.parametrize("change,code", [
-    (lambda s: setattr(s, "tracking", pb.SPNETS_PERCEPTION), pb.Error.INFEASIBLE),
+    (lambda s: setattr(s, "tracking", 99), pb.Error.BAD_REQUEST),       # no such tracking mode
     (lambda s: s.scene.fills[0].__setattr__("container", "table"), pb.Error.BAD_REQUEST),
     (lambda s: s.scene.fills[0].__setattr__("volume_ml", 5000.0), pb.Error.INFEASIBLE),
     (lambda s: s.fluid.__setattr__("lambda_v", -1.0), pb.Error.BAD_REQUEST),

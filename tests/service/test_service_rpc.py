@@ -193,7 +193,7 @@ ERRORS = {
     "too large": ("rpc/create_session", b"\x00" * 300_000, E.TOO_LARGE),
     "nan pose": ("rpc/create_session", _create(spec=_nan_pose()), E.NON_FINITE),
     "unknown fill container": ("rpc/create_session", _create(spec=_unknown_fill()), E.BAD_REQUEST),
-    "spnets perception": ("rpc/create_session", _create(spec=cup_spec(tracking=pb.SPNETS_PERCEPTION)), E.INFEASIBLE),
+    "unknown tracking mode": ("rpc/create_session", _create(spec=cup_spec(tracking=99)), E.BAD_REQUEST),
     "cuda": ("rpc/create_session", _create(spec=pb.SessionSpec(scene=cup_spec().scene, device="cuda")),
              E.INFEASIBLE),
     "no fill": ("rpc/create_session", _create(spec=pb.SessionSpec(scene=pb.SceneSpec(objects=cup_spec().scene.objects))),

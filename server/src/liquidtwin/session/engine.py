@@ -89,8 +89,11 @@ def _tracker(spec: pb.SessionSpec):
     if mode == pb.MAP_FILTER:
         return MapFilter()
     if mode == pb.SPNETS_PERCEPTION:
-        raise EngineError(INFEASIBLE, f"tracking mode {pb.TrackingMode.Name(mode)} is not available in this "
-                                      f"version; use WARP_FIELD, MAP_FILTER or OPEN_LOOP")
+        from ..tracking import PerceptionWeightsError, SPNetsPerception
+        try:
+            return SPNetsPerception()
+        except PerceptionWeightsError as e:
+            raise EngineError(INFEASIBLE, f"tracking mode SPNETS_PERCEPTION: {e}") from e
     raise EngineError(BAD_REQUEST, f"unknown tracking mode {mode}")
 
 

@@ -1,0 +1,209 @@
+"""SPNets + perception (SOLVEPERCEPTION in the PBF inner loop): distance fields against brute
+force, the image window against the full image, float64 gradcheck through the layer (particle
+positions and the blending net's weights), occluded particles untouched, a displaced blob pulled
+onto the observation by the solver term, the shipped weights, and a session on a generated pour."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+from liquidtwin_proto import liquidtwin_pb2 as pb
+from liquidtwin.camera import Camera, iou, sphere_coverage, sphere_radius_px, visible
+from liquidtwin.scenes.shapes import sample_grid, box
+from liquidtwin.sim import FluidModel, lattice, make_state, particle_radius, step
+from liquidtwin.tracking import (BlendNet, Observation, PerceptionWeightsError, SPNetsPerception, distance_field,
+                                 load_blend_net, nearest_vectors, solve_perception)
+from liquidtwin.tracking import perception as P
+from liquidtwin.tracking.perception import WEIGHTS
+
+H_K, SPACING = 0.011, 0.00605
+R_M = particle_radius(SPACING)
+
+
+def _camera(width=160, height=120):
+    return Camera.look_at((0.0, 0.12, 0.45), (0.0, 0.05, 0.0), width=width, height=height, fov_y_deg=40.0)
+
+
+def _blob(centre, half=0.02, spacing=SPACING):
+    p = lattice(-np.full(3, half), np.full(3, half), spacing)
+    p = p[(p**2).sum(1) <= half * half]
+    return torch.as_tensor(p + np.asarray(centre), dtype=torch.float32)
+
+
+def _mask(cam, x, vis=None):
+    uv, d = cam.project(x)
+    return sphere_coverage(uv, sphere_radius_px(cam.fx, d, R_M), vis, cam.height, cam.width) > 0
+
+
+def _random_net(seed=0, dtype=torch.float64):
+    torch.manual_seed(seed)
+    net = BlendNet().to(dtype)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    return net
+
+
+def test_distance_field_and_nearest_vectors_match_brute_force():
+    rng = np.random.default_rng(1)
+    H, W = 30, 40
+    mask = np.zeros((H, W), bool)
+    mask[5:9, 6:12] = True
+    mask[20:26, 28:31] = True
+    mask[rng.integers(0, H, 5), rng.integers(0, W, 5)] = True
+    d = distance_field(torch.as_tensor(mask)).numpy()
+    f = nearest_vectors(torch.as_tensor(mask), torch.float64).numpy()
+    ii, jj = np.nonzero(mask)
+    exact = 0
+    for i in range(H):
+        for j in range(W):
+            dist2 = (ii - i) ** 2 + (jj - j) ** 2
+            assert d[i, j] == pytest.approx(math.sqrt(dist2.min()), abs=1e-3)
+            # Where the pixel and its 4 neighbours share one unique nearest pixel, −½∇D² is exact.
+            nearest = lambda a, b: np.flatnonzero(((ii - a) ** 2 + (jj - b) ** 2) == ((ii - a) ** 2 + (jj - b) ** 2).min())
+            k = nearest(i, j)
+            if len(k) == 1 and 0 < i < H - 1 and 0 < j < W - 1 and all(
+                    len(nearest(a, b)) == 1 and nearest(a, b)[0] == k[0]
+                    for a, b in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1))):
+                np.testing.assert_allclose(f[:, i, j], [jj[k[0]] - j, ii[k[0]] - i], atol=1e-3)
+                exact += 1
+    assert exact > 0.5 * H * W
+    assert not nearest_vectors(torch.zeros(H, W, dtype=torch.bool)).any()
+    assert torch.isinf(distance_field(torch.zeros(H, W, dtype=torch.bool))).all()
+
+
+def test_window_gives_the_full_image_result(monkeypatch):
+    cam = _camera()
+    truth = _blob((0.0, 0.05, 0.0))
+    obs = _mask(cam, truth)
+    x = (truth + torch.tensor([0.03, 0.01, 0.0])).double()
+    vis = visible(cam, x)
+    net = _random_net()
+    windowed = solve_perception(x, cam, vis, obs, net, radius_m=R_M)
+    monkeypatch.setattr(P, "_crop", lambda o, uv, r, H, W: ((0, H, 0, W), uv))
+    full = solve_perception(x, cam, vis, obs, net, radius_m=R_M)
+    assert float(full.abs().max()) > 1e-3
+    torch.testing.assert_close(windowed, full, atol=1e-7, rtol=0)
+
+
+def test_gradcheck_through_solve_perception():
+    cam = _camera(48, 36)
+    truth = _blob((0.0, 0.05, 0.0), half=0.012, spacing=0.008).double()
+    obs = _mask(cam, truth)
+    x0 = truth[::3] + torch.tensor([0.011, 0.004, 0.0], dtype=torch.float64)
+    x0 = x0 + 1e-4 * torch.randn(x0.shape, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    vis = visible(cam, x0)
+    vis[0] = False
+    net = _random_net()
+    names = [n for n, _ in net.named_parameters()]
+    params = tuple(p.detach().clone().requires_grad_(True) for p in net.parameters())
+
+    class _With(torch.nn.Module):
+        """The blending net evaluated with the parameter tensors ``ps`` (for gradcheck)."""
+
+        def __init__(self, ps):
+            super().__init__()
+            self.ps = ps
+
+        def forward(self, y):
+            return torch.func.functional_call(net, dict(zip(names, self.ps)), (y,))
+
+        @property
+        def log_gain(self):
+            return self.ps[names.index("log_gain")]
+
+        @property
+        def gain(self):
+            return self.log_gain.exp()
+
+    def f(x, *ps):
+        return solve_perception(x, cam, vis, obs, _With(ps), radius_m=R_M)
+
+    x = x0.clone().requires_grad_(True)
+    out = f(x, *params)
+    assert float(out[vis].abs().max()) > 1e-4 and bool((out[0] == 0).all())
+    assert torch.autograd.gradcheck(f, (x, *params), eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+def test_occluded_particles_are_not_moved_and_labels_map_through_the_sort():
+    cam = _camera()
+    truth = _blob((0.0, 0.05, 0.0))
+    obs_mask = _mask(cam, truth)
+    x = truth + torch.tensor([0.03, 0.0, 0.0])
+    # A wall between the camera and the right half of the blob.
+    wall = sample_grid(lambda p: box(p, (0.02, 0.05, 0.002), (0.045, 0.05, 0.1)), (0.0, -0.02, 0.07),
+                       (0.09, 0.12, 0.13), 0.002, 0.004, "wall")
+    poses = torch.tensor([[0, 0, 0, 0, 0, 0, 1.0]])
+    vis = visible(cam, x, [wall], poses)
+    assert 0 < int(vis.sum()) < len(x)
+    net = load_blend_net()
+    d = solve_perception(x, cam, vis, obs_mask, net, radius_m=R_M)
+    assert bool((d[~vis] == 0).all()) and float(d[vis].norm(dim=1).max()) > 0
+    # The solver term: the tracker maps the observation's rows to labels, the step sorts them.
+    model = FluidModel.create(H_K, spacing=SPACING, objects=[wall])
+    tracker = SPNetsPerception(net)
+    uv, depth = cam.project(x)
+    tracker.correct(Observation(cam, obs_mask, x, torch.zeros_like(x), uv, depth, vis, None, 1.0, model, poses))
+    term = tracker.terms()[0]
+    state = make_state(x, poses=poses)
+    state = dataclasses.replace(state, ids=torch.arange(100, 100 + len(x)))
+    term.acceleration(model, state)                       # start of a step: labels resolved
+    perm = torch.randperm(len(x), generator=torch.Generator().manual_seed(0))
+    dp = term.position_delta(model, x[perm], state.ids[perm])
+    assert bool((dp[~vis[perm]] == 0).all())
+    moved = dp.norm(dim=1) > 0
+    assert bool(vis[perm][moved].all()) and int(moved.sum()) > 0.5 * int(vis.sum())
+    assert float(dp.norm(dim=1).max()) <= tracker.max_move * H_K + 1e-9
+
+
+def test_solver_term_pulls_a_displaced_blob_onto_the_observation():
+    cam = _camera(320, 240)
+    truth = _blob((0.0, 0.05, 0.0))
+    obs_mask = _mask(cam, truth)
+    model = FluidModel.create(H_K, spacing=SPACING, dt=1 / 120, iterations=4, gravity=(0.0, 0.0, 0.0))
+    tracker = SPNetsPerception()
+    with_term = model.replace(terms=(tracker.terms()[0],))
+    state = make_state(truth + torch.tensor([0.025, 0.01, 0.0]))
+    ious, gaps = [], []
+    with torch.no_grad():
+        for k in range(12):
+            vis = visible(cam, state.x)
+            ious.append(iou(_mask(cam, state.x, vis), obs_mask))
+            gaps.append(float((state.x.mean(0) - truth.mean(0)).norm()))
+            uv, depth = cam.project(state.x)
+            tracker.correct(Observation(cam, obs_mask, state.x, state.v, uv, depth, vis, None, 1.0, model,
+                                        state.poses))
+            state = step(with_term, state)
+    ious.append(iou(_mask(cam, state.x), obs_mask))
+    gaps.append(float((state.x.mean(0) - truth.mean(0)).norm()))
+    open_state = make_state(truth + torch.tensor([0.025, 0.01, 0.0]))
+    for _ in range(12):
+        open_state = step(model, open_state)
+    assert ious[0] < 0.3 and ious[-1] > ious[0] + 0.25, ious
+    assert iou(_mask(cam, open_state.x), obs_mask) < ious[0] + 0.05
+    assert gaps[-1] < 0.6 * gaps[0], gaps
+
+
+def test_shipped_weights_load_and_bad_files_fail_clearly(tmp_path):
+    state = torch.load(WEIGHTS, weights_only=True)
+    assert isinstance(state, dict) and all(isinstance(v, torch.Tensor) for v in state.values())
+    assert sum(v.numel() for v in state.values()) <= 50_000
+    net = load_blend_net()
+    assert 0 < float(net.gain) < 10
+    assert net(torch.zeros(1, 1, 8, 8)).shape == (1, 1, 8, 8)
+    bad = tmp_path / "corrupt.pt"
+    bad.write_bytes(WEIGHTS.read_bytes()[:100])
+    with pytest.raises(PerceptionWeightsError, match="corrupt.pt"):
+        load_blend_net(bad)
+    wrong = tmp_path / "wrong.pt"
+    torch.save({"convs.0.weight": torch.zeros(4, 1, 5, 5)}, wrong)
+    with pytest.raises(PerceptionWeightsError, match="does not match"):
+        load_blend_net(wrong)
+    nan = tmp_path / "nan.pt"
+    torch.save({k: v * float("nan") for k, v in state.items()}, nan)
+    with pytest.raises(PerceptionWeightsError, match="NaN"):
+        load_blend_net(nan)
+    with pytest.raises(PerceptionWeightsError, match="not found"):
+        load_blend_net(tmp_path / "missing.pt")
