@@ -70,7 +70,7 @@ def test_mask_volume_follows_the_target_and_checkpoints_bit_for_bit(data):
         rest.append(b.mask_volumes())
     assert rest[-1] == est[-1] and all(r["target"] is not None for r in rest[-3:])
     sa, sb = a.state_dict()["mask_volumes"], b.state_dict()["mask_volumes"]
-    assert sa["belief"].keys() == sb["belief"].keys() and sa["frame"] == sb["frame"]
+    assert sa["belief"].keys() == sb["belief"].keys() and sa["steps_at"] == sb["steps_at"]
     for k in sa["belief"]:
         assert torch.equal(sa["belief"][k], sb["belief"][k])
 

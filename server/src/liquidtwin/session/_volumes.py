@@ -71,6 +71,8 @@ BLOCKS_ACROSS = 80
 STILL_M, STILL_RAD = 5e-4, 2e-3
 #: Share of the initial belief spread evenly over all bins (the rest sits on the stated fill).
 PRIOR_FLOOR = 0.05
+#: Most predict steps applied at once after masks that could not show a container's liquid.
+MAX_PREDICT = 300
 
 
 def _camera_key(camera, stride: int) -> str:
@@ -92,11 +94,12 @@ class MaskVolumes:
     Per container: a :class:`~liquidtwin.volumes.LevelTable` over the bins of the shipped
     learned transition (:func:`~liquidtwin.volumes.scaled_transition`: fractions of the
     session's liquid, cut at the capacity) and a :class:`~liquidtwin.volumes.VolumeFilter`
-    whose belief starts on the spec's stated fill. Every mask: one predict step (once per
-    engine frame), then the likelihood of the mask downsampled to ~:data:`BLOCKS_ACROSS`
+    whose belief starts on the spec's stated fill. Every mask: a predict step (one per
+    engine frame with masks), then the likelihood of the mask downsampled to ~:data:`BLOCKS_ACROSS`
     blocks across, the other scene objects occluding. A mask that could not show this
     container's liquid at any volume (interior unseen, or liquid hidden behind the walls) is
-    skipped: the belief neither moves nor spreads. The filter reads only masks, poses and the camera.
+    skipped; the next informative one first predicts once per mask frame missed (the
+    transition is learned per mask frame). The filter reads only masks, poses and the camera.
     """
 
     def __init__(self, names, objects, containers, occluders, total_ml: float, spacing: float, fills: dict):
@@ -119,8 +122,10 @@ class MaskVolumes:
 
     def reset(self) -> None:
         self._belief: dict = {}
-        self._frame: dict = {}
         self._anchor: dict = {}
+        self._mask_frames = 0                  # engine frames that brought a mask
+        self._last_frame = -1
+        self._steps_at: dict = {}              # container → _mask_frames at its latest update
 
     def update(self, frame: int, camera, mask: np.ndarray, poses: np.ndarray) -> None:
         """Filter one (H, W) bool mask of ``camera`` taken at engine frame ``frame``, objects at
@@ -137,6 +142,8 @@ class MaskVolumes:
             self._rays = (ck, pixel_rays(camera, stride))
         rays = self._rays[1]
         obs = downsample_mask(mask, stride)
+        if frame != self._last_frame:
+            self._mask_frames, self._last_frame = self._mask_frames + 1, int(frame)
         for name, table in self._tables.items():
             k = self._names.index(name)
             pose = np.asarray(poses[k], float)
@@ -155,10 +162,11 @@ class MaskVolumes:
             b = self._belief.get(name)
             if b is None:
                 b = filt.initial(self._prior[name])
-            elif self._frame[name] != frame:
-                b = filt.predict(b)
+            else:
+                for _ in range(min(MAX_PREDICT, self._mask_frames - self._steps_at[name])):
+                    b = filt.predict(b)
             self._belief[name] = filt.update(b, log_likelihood(e.liquid, e.interior, obs, fractions=e.fractions))
-            self._frame[name] = int(frame)
+            self._steps_at[name] = self._mask_frames
         self.last_ms = 1e3 * (time.perf_counter() - start)
 
     def volumes(self) -> dict:
@@ -167,12 +175,15 @@ class MaskVolumes:
 
     def state_dict(self) -> dict:
         return {"belief": {n: torch.as_tensor(b.copy()) for n, b in self._belief.items()},
-                "frame": dict(self._frame), "anchor": {k: torch.as_tensor(a.copy()) for k, a in self._anchor.items()}}
+                "steps_at": dict(self._steps_at), "mask_frames": self._mask_frames, "last_frame": self._last_frame,
+                "anchor": {k: torch.as_tensor(a.copy()) for k, a in self._anchor.items()}}
 
     def load_state_dict(self, state: dict) -> None:
         self.reset()
         for n, b in state.get("belief", {}).items():
             if n in self._tables and tuple(b.shape) == self._filters[n].bins.shape:
                 self._belief[n] = b.numpy().astype(np.float64)
-                self._frame[n] = int(state["frame"][n])
+                self._steps_at[n] = int(state["steps_at"][n])
+        self._mask_frames = int(state.get("mask_frames", 0))
+        self._last_frame = int(state.get("last_frame", -1))
         self._anchor = {k: a.numpy().astype(np.float64) for k, a in state.get("anchor", {}).items()}
