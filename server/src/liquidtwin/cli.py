@@ -111,9 +111,11 @@ def run_demo(args: argparse.Namespace) -> int:
 def _configure_generate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--list", action="store_true", help="print one line per scene and per effect, then exit")
     p.add_argument("--scene", metavar="NAME", help="scene to generate (see --list)")
-    p.add_argument("--effect", action="append", default=[], metavar="NAME[=VALUE]",
+    p.add_argument("--effect", action="append", default=[], metavar="NAME[=VALUE][:KEY=X]",
                    help="hide an effect in the world (repeatable); VALUE in the effect's unit, drawn "
-                        "from its realistic range when omitted; 'random' picks one effect or none")
+                        "from its realistic range when omitted; ':KEY=X' fixes a secondary parameter "
+                        "the seed would draw (e.g. blockage=1.0:leg=left — the pipe's left leg, full); "
+                        "'random' picks one effect or none")
     p.add_argument("--seed", type=int, default=0, metavar="N",
                    help="randomises scene, world, effect extras and sensor noise (default: %(default)s)")
     p.add_argument("--out", type=Path, metavar="REC.mcap",
@@ -124,7 +126,7 @@ def _configure_generate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--target", choices=("bowl", "fruit_bowl", "dog_dish", "pan"),
                    help="pour scenes: the target container (default: drawn from the seed)")
     p.add_argument("--fill", type=float, metavar="FRACTION",
-                   help="pour scenes: initial fill of the source, 0–1 (default: 0.3, 0.6 or 0.9 from the seed)")
+                   help="pour scenes: initial fill of the source, 0 (empty) to 1 (default: 0.3, 0.6 or 0.9 from the seed)")
     p.add_argument("--rgb", action="store_true", help="also write synthetic RGB frames")
     p.add_argument("--perfect-sensors", action="store_true",
                    help="no pose/mask noise and no dropped frames")
@@ -134,7 +136,7 @@ def _configure_generate(p: argparse.ArgumentParser) -> None:
 
 def run_generate(args: argparse.Namespace) -> int:
     """Generate a recording with optional hidden effects; print a summary."""
-    from liquidtwin.generate import listing, parse_effect
+    from liquidtwin.generate import listing, parse_effect_extra
     if args.list:
         print("\n".join(listing()))
         return 0
@@ -142,7 +144,7 @@ def run_generate(args: argparse.Namespace) -> int:
         print("liquidtwin generate: --scene and --out are required (or --list)", file=sys.stderr)
         return 2
     try:
-        effects = [("random", None) if e.strip() == "random" else parse_effect(e) for e in args.effect]
+        effects = [("random", None) if e.strip() == "random" else parse_effect_extra(e) for e in args.effect]
     except ValueError as exc:
         print(f"liquidtwin generate: {exc}", file=sys.stderr)
         return 2

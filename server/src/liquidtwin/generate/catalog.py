@@ -291,7 +291,7 @@ def build_setup(name: str, rng: np.random.Generator, quick: bool = False, **choi
 
     ``choices`` (pour scenes only) fix what the seed would otherwise draw: ``source`` (one of
     ``SOURCES``), ``target`` (one of ``TARGETS``), ``fraction`` (initial fill of the source,
-    0 < fraction ≤ 1). Every other draw of the seed stays the same.
+    0 ≤ fraction ≤ 1, 0 = an empty source). Every other draw of the seed stays the same.
     """
     if name not in SCENES:
         raise ValueError(f"unknown scene {name!r}; known: {', '.join(SCENES)}")
@@ -305,6 +305,6 @@ def build_setup(name: str, rng: np.random.Generator, quick: bool = False, **choi
             allowed = CHOICES[key]
             if allowed is not None and value not in allowed:
                 raise ValueError(f"{key} {value!r} is not one of {', '.join(allowed)}")
-        if "fraction" in choices and not 0.0 < float(choices["fraction"]) <= 1.0:
-            raise ValueError(f"fill fraction {choices['fraction']} must be in (0, 1]")
+        if "fraction" in choices and not 0.0 <= float(choices["fraction"]) <= 1.0:
+            raise ValueError(f"fill fraction {choices['fraction']} must be in [0, 1] (0 = empty)")
     return dataclasses.replace(SCENES[name](rng, quick, **choices), quick=quick)

@@ -11,6 +11,7 @@ the fluid parameters; the generator (``generate.world``) applies them to the wor
 
 >>> parse_effect("drag=2.5")             # Effect(name="drag", value=2.5, extra={})
 >>> sample_effect("leak", rng)           # realistic random magnitude and position
+>>> parse_effect_extra("blockage=1.0:leg=right")   # ("blockage", 1.0, {"leg": 1.0})
 """
 
 from __future__ import annotations
@@ -108,12 +109,19 @@ def _extras(name: str, rng: np.random.Generator) -> dict:
     return {}
 
 
-def sample_effect(name: str, rng: np.random.Generator, value: float | None = None) -> Effect:
-    """An effect with ``value`` (drawn from its realistic range if None) and drawn extras."""
+def sample_effect(name: str, rng: np.random.Generator, value: float | None = None,
+                  extra: dict | None = None) -> Effect:
+    """An effect with ``value`` (drawn from its realistic range if None) and drawn extras, of
+    which those named in ``extra`` are replaced (the draws happen anyway, so the seed's other
+    streams do not change)."""
     if name not in EFFECTS:
         raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
     v = _draw(EFFECTS[name], rng) if value is None else float(value)
-    return Effect(name, v, _extras(name, rng))
+    drawn = _extras(name, rng)
+    unknown = set(extra or {}) - set(drawn)
+    if unknown:
+        raise ValueError(f"effect {name}: unknown extra {sorted(unknown)}; it takes {sorted(drawn) or 'none'}")
+    return Effect(name, v, drawn | dict(extra or {}))
 
 
 def parse_effect(text: str) -> tuple[str, float | None]:
@@ -131,3 +139,26 @@ def parse_effect(text: str) -> tuple[str, float | None]:
     if not math.isfinite(v):
         raise ValueError(f"effect {name}: value must be finite")
     return name, v
+
+
+#: Named values an extra may take on the command line (``blockage=1.0:leg=left``).
+_EXTRA_WORDS = {"leg": {"left": 0.0, "spout": 0.0, "right": 1.0}}
+
+
+def parse_effect_extra(text: str) -> tuple[str, float | None, dict]:
+    """``"NAME[=VALUE][:KEY=X[:KEY=X]]"`` → (name, value, extra): ``parse_effect`` plus fixed
+    secondary parameters, numbers or, for ``leg``, ``left``/``right``."""
+    head, *items = text.split(":")
+    name, value = parse_effect(head)
+    extra = {}
+    for item in items:
+        key, eq, raw = (part.strip() for part in item.partition("="))
+        if not eq or not key or not raw:
+            raise ValueError(f"effect {name}: extra {item!r} must read KEY=VALUE")
+        words = _EXTRA_WORDS.get(key, {})
+        try:
+            extra[key] = words[raw] if raw in words else float(raw)
+        except ValueError:
+            known = f" or one of {', '.join(words)}" if words else ""
+            raise ValueError(f"effect {name}: extra {key}={raw!r} is not a number{known}") from None
+    return name, value, extra

@@ -86,7 +86,8 @@ def scene_spec(setup, session_id: str = "generated") -> pb.SceneSpec:
         for k, v in o.params.items():
             item.params[k] = float(v)
     for name, ml in setup.fills:
-        spec.fills.add(container=name, volume_ml=float(ml))
+        if ml > 0:                               # an empty container states no fill
+            spec.fills.add(container=name, volume_ml=float(ml))
     return spec
 
 
@@ -96,8 +97,9 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
 
     Args:
       scene: a name from ``generate.catalog.SCENES``.
-      effects: (name, value) pairs, names from ``generate.effects.EFFECTS``; a None value is
-        drawn from the effect's realistic range. The name ``"random"`` picks one effect or
+      effects: (name, value) pairs or (name, value, extra) triples, names from
+        ``generate.effects.EFFECTS``; a None value is drawn from the effect's realistic range;
+        ``extra`` fixes secondary parameters (e.g. ``{"leg": 0.0}``: the left pipe leg). The name ``"random"`` picks one effect or
         none (equal odds) from the seed — for blind tests.
       seed: randomises the scene, the world, the effect's extras and all sensor noise.
       quick: the short, small variant (tests). rgb: also write synthetic RGB frames.
@@ -202,7 +204,8 @@ def _mask_noise(rng: np.random.Generator) -> MaskNoise:
 
 def _resolve(effects, rng: np.random.Generator) -> list[Effect]:
     out = []
-    for name, value in effects:
+    for item in effects:
+        name, value, extra = (tuple(item) + (None,))[:3]
         if name == "random":
             names = [None] + list(EFFECTS)
             name = names[int(rng.integers(len(names)))]
@@ -211,7 +214,7 @@ def _resolve(effects, rng: np.random.Generator) -> list[Effect]:
             value = None
         if any(e.name == name for e in out):
             raise ValueError(f"effect {name!r} given twice")
-        out.append(sample_effect(name, rng, value))
+        out.append(sample_effect(name, rng, value, extra))
     return out
 
 

@@ -17,7 +17,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ..scenes.fill import fill_container
-from ..sim import (FluidModel, QuadraticDrag, SDFGrid, UniformAcceleration, WallAdhesion, carve, make_state,
+from ..sim import (FluidModel, FluidState, QuadraticDrag, SDFGrid, UniformAcceleration, WallAdhesion, carve, make_state,
                    solidify, step)
 from .effects import Effect
 
@@ -101,11 +101,14 @@ def build_world(setup, effects, rng: np.random.Generator) -> World:
 
 
 def initial_state(world: World, setup, *, progress: bool = False):
-    """Fill the scene's containers (true volumes) and settle; returns (state, fill reports)."""
+    """Fill the scene's containers (true volumes) and settle; returns (state, fill reports).
+    Containers filled with 0 ml stay empty; with no liquid at all the state has 0 particles."""
     poses = torch.as_tensor(setup.poses_at(0.0))
     reports = {}
     state = None
     for name, ml in world.fill_ml.items():
+        if ml <= 0:
+            continue
         index = setup.index(name)
         obj = setup.objects[index].model
         s, report = fill_container(world.filler, poses, index, obj, volume_ml=ml, progress=progress,
@@ -113,7 +116,10 @@ def initial_state(world: World, setup, *, progress: bool = False):
         reports[name] = report
         state = s if state is None else _merge(state, s)
     if state is None:
-        raise ValueError(f"scene {setup.name!r} has no liquid")
+        if not world.fill_ml:
+            raise ValueError(f"scene {setup.name!r} has no liquid")
+        empty = torch.zeros(0, 3)
+        state = FluidState(empty, empty.clone(), torch.zeros(0, dtype=torch.long), poses.to(torch.float32))
     return state, reports
 
 
@@ -127,6 +133,8 @@ def simulate(world: World, setup, state, steps: int, *, progress: bool = False) 
     last: (steps + 1, N, 3) float32, m (row k is time k·dt)."""
     out = np.empty((steps + 1,) + tuple(state.x.shape), np.float32)
     out[0] = state.by_id()[0].detach().numpy()
+    if state.x.shape[0] == 0:                 # an empty scene: nothing moves
+        return out
     bar = tqdm(total=steps, desc=f"world {setup.name}", unit="step", disable=not progress, leave=False)
     with torch.no_grad():
         for k in range(steps):
