@@ -76,11 +76,18 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None) -> dict:
     """{"t_s", "truth", "pour_from", "particles": {tracker: {container: [...]}}, "mask": {...},
     "mask_ms"} for one recording."""
     from ..recordings import read_recording
+    from ..session.errors import INFEASIBLE, EngineError
     rec = read_recording(path, images=False)
-    series, mask, stamps, mask_ms = {}, None, [], []
+    series, mask, stamps, mask_ms, t_s = {}, None, [], [], []
     engine = None
     for t in trackers:
-        engine = engine_for(rec, t)
+        try:
+            engine = engine_for(rec, t)
+        except EngineError as e:            # a mode this build cannot run: n/a in the table
+            if e.code != INFEASIBLE:
+                raise
+            series[t] = None
+            continue
         part = {n: [] for n in engine.container_names}
         est = {n: [] for n in engine.container_names}
         first = mask is None
@@ -100,6 +107,8 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None) -> dict:
         series[t] = part
         if first:
             mask, t_s = est, r.t_s
+    if engine is None:
+        raise SystemExit(f"none of the trackers {', '.join(trackers)} can run here")
     truth = true_volumes(path, engine, stamps)
     src = rec.object_names.index("source") if "source" in rec.object_names else None
     pour_from = len(stamps)
@@ -123,7 +132,7 @@ def case_rmse(r: dict) -> dict:
         out[name] = {}
         for col in COLUMNS:
             cont, span = col.split()
-            if cont not in s:
+            if s is None or cont not in s:
                 out[name][col] = None
                 continue
             out[name][col] = _rmse(s[cont], r["truth"][cont], r["pour_from"] if span == "pour" else 0)
@@ -150,9 +159,9 @@ def table(results: list[dict]) -> dict:
 
 def format_table(tab: dict, note: str) -> str:
     w = 14
-    lines = ["estimator".ljust(22) + "".join(c.rjust(w) for c in COLUMNS)]
+    lines = ["estimator".ljust(30) + "".join(c.rjust(w) for c in COLUMNS)]
     for name, row in tab.items():
-        lines.append(name.ljust(22) + "".join(("n/a" if row[c] is None else f"{row[c]:.2f} ml").rjust(w)
+        lines.append(name.ljust(30) + "".join(("n/a" if row[c] is None else f"{row[c]:.2f} ml").rjust(w)
                                              for c in COLUMNS))
     lines.append(f"RMSE vs the true held volume per mask frame; pour = from the first frame with the source "
                  f"tilted > {POUR_TILT_RAD} rad; {note}")
@@ -215,6 +224,8 @@ def _plots(out: Path, tab: dict, results: list[dict]) -> None:
         t = r["t_s"]
         ax.plot(t, r["truth"]["target"], "k-", lw=2, label="truth")
         for tr, s in r["particles"].items():
+            if s is None:
+                continue
             ax.plot(t, s["target"], "-", label=f"particles ({tr})")
         ax.plot(t, r["mask"]["target"], "--", label="mask (model-based)")
         if r["pour_from"] < len(t):
