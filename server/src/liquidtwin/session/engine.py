@@ -37,8 +37,8 @@ from .overlay import make_overlay
 #: the thesis's particles at its 640x512 camera. Here each particle is drawn as its own
 #: sphere (radius from the rest volume, ``sim.particle_radius``) projected at its depth, so the
 #: model mask means the same at any resolution and distance: with 5 px discs the *true*
-#: particles score IOU 0.56 against their own full-size generated masks (0.23 at 320x240),
-#: with projected spheres 0.87 (0.55) — bench/mask_ceiling.py.
+#: particles score IOU 0.66 against their own full-size generated masks (0.35 at 320x240),
+#: with projected spheres 0.87 (0.67) — bench/mask_ceiling.py (pour_hold, cup, 60 %, seed 5).
 NEAR_M = 0.02
 MIN_RADIUS_PX = 1.0
 #: Occlusion margin, px: rays are tested from this far around a particle's centre.

@@ -56,7 +56,9 @@ DEFAULT_VELOCITY_SHARE = 0.0
 #: A hypothesis is only preferred to a shorter move if its normalised Ψ is higher by more than
 #: this (the float32 FFT's rounding is ~1e-7; W at the cut-off is ~1e-4 of its peak).
 DEFAULT_MIN_GAIN = 3e-3
-#: Hypothesis rounds per observation (each from the last round's choice, Φ redrawn).
+#: Hypothesis rounds per observation (each from the last round's choice, Φ redrawn). On the
+#: quick pouring benchmark's tuning cases (base seed 100, trial 0, 7 cases; projected-sphere
+#: model mask) one round scores 0.187 (open loop 0.145), three rounds 0.121 and lose liquid.
 DEFAULT_ITERATIONS = 1
 
 
@@ -90,7 +92,7 @@ class MapFilter(Tracker):
     """MAP-filter tracker (module doc).
 
     Args:
-      cell_m: hypothesis grid cell, m (default 5 mm).
+      cell_m: hypothesis grid cell, m (default :data:`DEFAULT_CELL_M`; thesis 5 mm).
       length_px, cutoff_px: W's length scale and cut-off at 640×480, px (scaled with the image).
       velocity_share: dv = dx / velocity_time_s × this (0: position only).
       velocity_time_s: the camera period, s.
