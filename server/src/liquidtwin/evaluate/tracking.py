@@ -13,7 +13,8 @@ observed masks — what mask noise and drawing alone cost, the best any tracker 
 
 A tracker whose session cannot be created (EngineError INFEASIBLE, e.g. a mode not built
 yet) gets "n/a" in its column. Results: ``results.json`` (every case with its seed and
-parameters, every IOU series), ``table.png`` (bars of the table) and ``iou_time.png``.
+parameters, every IOU series), ``table.png`` (bars of the table) and ``iou_time.png``. ``--jobs``
+processes generate the missing recordings and then replay the cases (one case per process).
 """
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ def format_table(tab: dict, columns: list[str], min_px: int, note: str) -> str:
         cells = ["n/a" if tab[row][c] is None else f"{100 * tab[row][c]:.1f} %" for c in columns]
         lines.append(row.ljust(9) + "".join(x.rjust(w) for x in cells))
     lines.append(f"mean IOU (model mask vs observed mask, before each correction) over frames whose observed "
-                 f"mask has >= {min_px} px; {note}")
+                 f"mask has >= {min_px} px (n/a: tracker not available, or no such frames); {note}")
     return "\n".join(lines)
 
 
@@ -160,10 +161,13 @@ def run(args) -> int:
         raise SystemExit("--frames must be at least 2")
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
-    for case, path in tqdm(list(zip(case_list, paths)), desc="replay", unit="case", disable=args.no_progress):
-        r = evaluate_case(path, trackers, frames=args.frames)
+    work = [(str(p), tuple(trackers), args.frames) for p in paths]
+    bar = tqdm(total=len(work), desc="replay", unit="case", disable=args.no_progress)
+    for case, path, r in zip(case_list, paths, _map(_evaluate_one, work, args.jobs)):
+        bar.update()
         means = {k: _mean(v, args.min_px) for k, v in r["series"].items()}
         results.append({"case": case.as_dict(), "recording": str(path), "mean_iou": means, **r})
+    bar.close()
     columns = trackers + ["ceiling"]
     tab = table(results, columns, args.min_px)
     note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
@@ -179,6 +183,23 @@ def run(args) -> int:
     (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
     _plots(out, tab, columns, results, args.min_px)
     return 0
+
+
+def _evaluate_one(job) -> dict:
+    import torch
+    torch.set_num_threads(1)
+    path, trackers, frames = job
+    return evaluate_case(Path(path), trackers, frames=frames)
+
+
+def _map(fn, work: list, jobs: int):
+    """fn over work in order, in ``jobs`` processes (1: here)."""
+    if jobs <= 1 or len(work) <= 1:
+        yield from map(fn, work)
+        return
+    import multiprocessing as mp
+    with mp.get_context("spawn").Pool(min(jobs, len(work))) as pool:
+        yield from pool.imap(fn, work)
 
 
 def _mean(s: dict | None, min_px: int) -> float | None:
