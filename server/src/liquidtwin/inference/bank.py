@@ -72,10 +72,14 @@ class Bank:
       shared_occlusion: occlude every hypothesis with hypothesis 0's objects in one ray march
         (exact when the variants differ only in liquid or in parts hidden inside an object,
         like the junction's plugs); False: each with its own objects.
+      dtype: particle precision (sessions use float32; at 2 m from the origin float32 resolves
+        0.24 µm, so a hypothesis's rounding differs from the same run at the origin).
+      first_slot: hypothesis k sits at slot ``first_slot + k`` (offset ``slot · offset_m``).
     """
 
     def __init__(self, model: FluidModel, hypotheses, occluders, *, tracking: str = "open_loop",
-                 offset_m: float = OFFSET_M, shared_occlusion: bool = True):
+                 offset_m: float = OFFSET_M, shared_occlusion: bool = True, dtype=torch.float32,
+                 first_slot: int = 0):
         hyps = list(hypotheses)
         if not hyps:
             raise ValueError("a hypothesis bank needs at least one hypothesis")
@@ -86,46 +90,51 @@ class Bank:
             raise ValueError(f"offset_m {offset_m} must be well beyond the kernel radius h = {model.h} m")
         self.hypotheses, self.occluders, self.offset_m, self.mode = hyps, tuple(occluders), float(offset_m), tracking
         self.base_model, self.shared_occlusion = model, bool(shared_occlusion)
+        self.dtype, self.first_slot = dtype, int(first_slot)
         self.M, self.K = m, len(hyps)
         self.models = [model.replace(objects=tuple(h.objects)) for h in hyps]
         self.model = model.replace(objects=tuple(g for h in hyps for g in h.objects))
         self.trackers = [make_tracker(tracking) for _ in hyps]
         self.radius_m = particle_radius(float(model.spacing))
         self.counts = [int(h.x.shape[0]) for h in hyps]
-        shift = self._shifts(torch.float32)
-        xs = [h.x.to(torch.float32) + shift[k] for k, h in enumerate(hyps)]
-        vs = [h.v.to(torch.float32) for h in hyps]
+        shift = self._shifts(dtype)
+        xs = [h.x.to(dtype) + shift[k] for k, h in enumerate(hyps)]
+        vs = [h.v.to(dtype) for h in hyps]
         self.group_of_id = torch.cat([torch.full((n,), k, dtype=torch.long) for k, n in enumerate(self.counts)])
         n = sum(self.counts)
         self.state = None if n == 0 else FluidState(torch.cat(xs), torch.cat(vs), torch.arange(n),
-                                                     torch.zeros(self.K * m, 7), 0.0)
+                                                     torch.zeros(self.K * m, 7, dtype=dtype), 0.0)
 
-    def single(self, k: int) -> "Bank":
-        """Hypothesis ``k`` alone, at offset 0 (the sequential baseline)."""
+    def single(self, k: int, *, same_place: bool = False) -> "Bank":
+        """Hypothesis ``k`` alone (the sequential baseline): at offset 0, or with
+        ``same_place`` at its own slot of this bank (the same float rounding)."""
         return Bank(self.base_model, [self.hypotheses[k]], self.occluders, tracking=self.mode, offset_m=self.offset_m,
-                    shared_occlusion=self.shared_occlusion)
+                    shared_occlusion=self.shared_occlusion, dtype=self.dtype,
+                    first_slot=self.first_slot + k if same_place else 0)
 
     def _shifts(self, dtype) -> torch.Tensor:
         s = torch.zeros(self.K, 3, dtype=dtype)
-        s[:, 0] = torch.arange(self.K, dtype=dtype) * self.offset_m
+        s[:, 0] = (self.first_slot + torch.arange(self.K, dtype=dtype)) * self.offset_m
         return s
 
     def _all_poses(self, poses: torch.Tensor) -> torch.Tensor:
         """(K·M, 7) offset copies of the scene poses (M, 7)."""
-        out = poses.to(torch.float32).repeat(self.K, 1).clone()
-        out[:, 0] += torch.repeat_interleave(self._shifts(torch.float32)[:, 0], self.M)
+        out = poses.to(self.dtype).repeat(self.K, 1).clone()
+        out[:, 0] += torch.repeat_interleave(self._shifts(self.dtype)[:, 0], self.M)
         return out
 
     def start(self, poses) -> None:
         """Put the objects at their (M, 7) poses at time 0 (before the first step)."""
+        self._poses = torch.as_tensor(poses)
         if self.state is not None:
             s = self.state
-            self.state = FluidState(s.x, s.v, s.ids, self._all_poses(torch.as_tensor(poses)), s.t)
+            self.state = FluidState(s.x, s.v, s.ids, self._all_poses(self._poses), s.t)
 
     def step(self, poses) -> None:
         """One time step; ``poses`` (M, 7) scene object poses at its end."""
+        self._poses = torch.as_tensor(poses)
         if self.state is not None:
-            self.state = step(self.model, self.state, self._all_poses(torch.as_tensor(poses)))
+            self.state = step(self.model, self.state, self._all_poses(self._poses))
 
     def cull(self) -> None:
         """Drop particles fallen below every object (as sessions do)."""
@@ -151,7 +160,7 @@ class Bank:
             return out
         s = self.state
         group = self.group_of_id[s.ids]
-        poses = s.poses[: self.M]                    # hypothesis 0 sits at offset 0: the true poses
+        poses = self._poses.to(s.x.dtype)            # the scene's own poses now
         shift = self._shifts(s.x.dtype)
         x_all = s.x - shift[group]                   # every hypothesis at the scene's own place
         occ_poses = poses[list(self.occluders)]
