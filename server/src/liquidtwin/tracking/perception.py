@@ -57,7 +57,7 @@ class BlendNet(nn.Module):
     Four 3×3 convolutions (1 → c → c → c → 1, dilations 1, 2, 4, 1: a 17 px receptive field),
     ReLU after the first three, then a sigmoid. ``log_gain`` (scalar parameter): the read-out
     field (px) is multiplied by exp(log_gain) before the lift (a fraction of the way to the
-    nearest liquid per solver iteration). ``channels`` = 8: 1,386 parameters.
+    nearest liquid per solver iteration). ``channels`` = 8: 1,322 parameters.
     """
 
     def __init__(self, channels: int = 8):
@@ -138,7 +138,7 @@ def nearest_vectors(mask, dtype=torch.float32) -> torch.Tensor:
         return torch.zeros((2,) + tuple(d.shape), dtype=dtype, device=d.device)
     d2 = (d.to(torch.float64) ** 2)[None, None]
     d2 = F.pad(d2, (1, 1, 1, 1), mode="replicate")
-    # conv2d is a correlation: kernel [¼, 0, −¼] gives ¼(D²(p−1) − D²(p+1)) = −½ ∂D²/∂u (central difference).
+    # conv2d correlates: [¼, 0, −¼] gives ¼(D²(p−1) − D²(p+1)) = −½ ∂D²/∂u (central difference).
     g = F.conv2d(d2, _DIFF.to(d2))[0]
     return g.to(dtype)
 

@@ -18,8 +18,16 @@ observed state (this tracker never moves particles itself), so ``state.ids`` nam
 the state was changed in between, visibility falls back to "in view" alone.
 
 Until the first observation the term does nothing, so the tracker starts as open loop. The
-observation is used until the next one replaces it (steps
-between camera frames keep pulling toward the latest mask).
+observation is used until the next one replaces it (steps between camera frames keep pulling
+toward the latest mask).
+
+One departure from the thesis, on by default: PBF turns every solver correction into
+velocity (v = (x − x₀)/dt), and at dt = 1/120 s a pull of a millimetre per iteration launches
+a particle at ~0.5 m/s toward a mask that is already a frame old. ``velocity_share`` (default
+0) takes the perception's share back out of the velocity after the step, so it moves liquid
+without throwing it. On the golden quick pour the thesis's share 1 scored mean IOU 0.19–0.22
+against open loop's 0.245; share 0 scores 0.27–0.29. ``max_move`` 0.05 h was chosen among
+0.03–0.2 h on that pour and two quick benchmark cases.
 """
 
 from __future__ import annotations
@@ -35,7 +43,7 @@ from .base import Correction, Observation, Tracker
 from .perception import BlendNet, apply_field, blended_field, load_blend_net, nearest_vectors
 
 #: Cap on a particle's perception move per solver iteration, in kernel radii h.
-DEFAULT_MAX_MOVE = 0.1
+DEFAULT_MAX_MOVE = 0.05
 #: Share of the perception moves kept as velocity (1 = the thesis).
 DEFAULT_VELOCITY_SHARE = 0.0
 
