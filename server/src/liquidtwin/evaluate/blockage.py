@@ -131,15 +131,21 @@ def run(args) -> int:
                 "correct": post.best == case.truth, "p_truth": float(post.probability[k]),
                 "time_to_sure_s": time_to_sure(post.times_s, post.probability_over_time[:, k])}
         results.append(row)
+        _save(args, {"kind": "blockage", "partial": True, "cases": results})        # survives an interruption
     text = format_table(results, args.trackers, args.quick, delta)
     print(text)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "delta": delta,
            "frames": args.frames, "trackers": list(args.trackers), "table_text": text, "cases": results}
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    out = _save(args, doc)
     _plot(out, results, args.trackers)
     return 0
+
+
+def _save(args, doc: dict) -> Path:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    return out
 
 
 def format_table(results, modes, quick: bool, delta: float) -> str:

@@ -71,19 +71,25 @@ def run(args) -> int:
             k = post.names.index(truth)
             row["modes"][mode] = post.as_dict() | {"correct": post.best == truth, "p_truth": float(post.probability[k])}
         results.append(row)
+        _save(args, {"kind": "fill", "partial": True, "cases": results})        # survives an interruption
     summary = {m: {"mean_p_truth": float(np.mean([r["modes"][m]["p_truth"] for r in results])),
                    "ranked_first": int(sum(r["modes"][m]["correct"] for r in results)), "sequences": len(results)}
                for m in args.trackers}
     text = format_table(results, args.trackers, names, summary, args.quick, delta, args)
     print(text)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     doc = {"kind": "fill", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed, "delta": delta,
            "scale": scale, "frames": args.frames, "trackers": list(args.trackers), "hypotheses": names,
            "summary": summary, "table_text": text, "cases": results}
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    out = _save(args, doc)
     _plots(out, results, args.trackers, names)
     return 0
+
+
+def _save(args, doc: dict) -> Path:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    return out
 
 
 def format_table(results, modes, names, summary, quick, delta, args) -> str:

@@ -1,0 +1,146 @@
+"""Hidden-state inference (issue 5): δ-likelihood, the batched hypothesis bank, fill and
+blockage banks on small generated scenes, and the generator's empty fill / planted blockage."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from liquidtwin.generate import generate, parse_effect_extra
+from liquidtwin.generate.catalog import QUICK_FILL
+from liquidtwin.inference import (DELTA, Bank, Posterior, fill_hypotheses, infer_blockage, infer_fill,
+                                  mask_log_likelihood, normalise, score)
+from liquidtwin.recordings import read_recording
+
+
+# ------------------------------------------------------------------ likelihood
+
+def test_delta_likelihood_matches_a_direct_product():
+    rng = np.random.default_rng(0)
+    observed = rng.random((3, 4)) < 0.4
+    predicted = [rng.random((3, 4)) < p for p in (0.2, 0.5, 0.8)] + [observed.copy()]
+    delta = 0.6                                  # big enough for the product to differ visibly
+    direct = []
+    for p in predicted:
+        prod = 1.0
+        for a, b in zip(p.ravel().tolist(), observed.ravel().tolist()):
+            prod *= delta if a == b else 1.0 - delta
+        direct.append(prod)
+    ll = [mask_log_likelihood(p, observed, delta) for p in predicted]
+    assert np.allclose(ll, np.log(direct), rtol=0, atol=1e-12)
+    assert np.allclose(normalise(ll), np.array(direct) / sum(direct), atol=1e-12)
+    assert int(np.argmax(ll)) == 3                           # the exact prediction wins
+    # SPEC δ over a whole frame: agree·log δ + disagree·log(1 − δ), in float64.
+    big = np.zeros((240, 320), bool)
+    pred = big.copy()
+    pred[:10, :10] = True
+    assert mask_log_likelihood(pred, big) == pytest.approx((240 * 320 - 100) * math.log(DELTA)
+                                                           + 100 * math.log(1 - DELTA), rel=1e-14)
+    # Probability over time is the softmax of the running sums.
+    post = Posterior.from_series(["a", "b"], [[0.0, -1.0], [-3.0, 0.0]], [0.1, 0.2], 0.0)
+    assert np.allclose(post.probability_over_time[0], [1 / (1 + math.e ** -1), 1 / (1 + math.e)])
+    assert np.allclose(post.probability, normalise([-3.0, -1.0])) and post.best == "b"
+    with pytest.raises(ValueError):
+        mask_log_likelihood(pred, big, delta=0.5)
+
+
+# ------------------------------------------------------------------ generated scenes
+
+@pytest.fixture(scope="module")
+def pour(tmp_path_factory):
+    """Two quick partial pours of the same seed, 30 % and 90 % full, perfect sensors (a partial
+    pour tips out only what lies above its tilt, so the poured amount depends on the fill)."""
+    d = tmp_path_factory.mktemp("pours")
+    out = {}
+    for f in (0.3, 0.9):
+        generate("pour_partial", d / f"p{f}.mcap", seed=1, quick=True, noise=False,
+                 choices={"source": "cup", "target": "bowl", "fraction": f})
+        out[f] = read_recording(d / f"p{f}.mcap", images=False)
+    return out
+
+
+def test_batched_bank_equals_sequential_runs(pour):
+    # float64, so that the 2 m offset costs no precision: float32 rounds positions 2 m out to
+    # 0.24 µm, and a pouring splash amplifies any rounding difference to mm within ~0.3 s.
+    rec = pour[0.3]
+    scene, hyps = fill_hypotheses(rec.spec, "source", (0.3, 0.9), scale=QUICK_FILL)
+    assert hyps[0].x.shape[0] < hyps[1].x.shape[0]
+    bank = Bank(scene.model, hyps, scene.occluders, tracking="warp_field", dtype=torch.float64)
+    ll, t = score(bank, rec, scene.model.dt, camera="thermal", frames=45)
+    assert len(t) > 10
+    for k in range(2):
+        alone = bank.single(k)                       # alone, at the origin
+        ll1, t1 = score(alone, rec, scene.model.dt, camera="thermal", frames=45)
+        a, b = bank.particles(k), alone.particles(0)
+        assert a.shape == b.shape
+        assert float((a - b).abs().max()) < 1e-6
+        assert np.array_equal(ll[:, k], ll1[:, 0]) and np.array_equal(t, t1)
+    # The hypotheses really are apart: hypothesis 1 sits one offset along +x in the bank.
+    assert float(bank.state.x[:, 0].max()) > bank.offset_m - 0.5
+
+
+def test_fill_bank_ranks_the_truth_first_on_two_fills(pour):
+    # Each quick pour is told nothing about its fill; hypotheses empty / 30 / 90 % (× QUICK_FILL).
+    for truth, rec in pour.items():
+        post = infer_fill(rec, fractions=(0.0, 0.3, 0.9), scale=QUICK_FILL, tracking="open_loop")
+        assert post.best == f"{round(truth * 100)} %", (truth, post.names, post.probability)
+        assert post.probability_over_time.shape == (post.frames, 3)
+        assert np.allclose(post.probability_over_time.sum(1), 1.0)
+
+
+def test_blockage_bank_finds_a_full_leg(tmp_path):
+    path = tmp_path / "pipe.mcap"
+    g = generate("pipe", path, seed=3, quick=True, noise=False, effects=[("blockage", 1.0, {"leg": 0.0})])
+    truth = json.loads(g.truth.read_text())["effect"]
+    assert truth["extra"]["leg"] == 0.0 and truth["value"] == 1.0
+    rec = read_recording(path, images=False)
+    post = infer_blockage(rec, hypotheses=("none", "left_full"), tracking="open_loop")
+    assert post.best == "left_full", post.probability
+
+
+# ------------------------------------------------------------------ generator support
+
+def test_empty_fill_generates_and_the_empty_hypothesis_wins(tmp_path):
+    path = tmp_path / "empty.mcap"
+    g = generate("pour_hold", path, seed=2, quick=True, noise=False, choices={"source": "cup", "fraction": 0.0})
+    assert g.particles == 0 and g.masks > 10
+    truth = json.loads(g.truth.read_text())
+    assert truth["fill_ml"]["true"] == {"source": 0.0}
+    rec = read_recording(path, images=False)
+    assert not any(m[1].any() for m in rec.masks.values())
+    assert len(rec.spec.fills) == 0                       # an empty source states no fill
+    post = infer_fill(rec, container="source", fractions=(0.0, 0.6), scale=QUICK_FILL, tracking="open_loop",
+                      frames=90)
+    assert post.best == "empty" and post.info["particles"]["empty"] == 0
+
+
+def test_effect_extras_parse_and_fail_clearly():
+    assert parse_effect_extra("blockage=1.0:leg=right") == ("blockage", 1.0, {"leg": 1.0})
+    assert parse_effect_extra("blockage:leg=left") == ("blockage", None, {"leg": 0.0})
+    assert parse_effect_extra("drag=2") == ("drag", 2.0, {})
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        parse_effect_extra("blockage=1:leg")
+    with pytest.raises(ValueError, match="not a number"):
+        parse_effect_extra("blockage=1:leg=middle")
+    from liquidtwin.generate import sample_effect
+    with pytest.raises(ValueError, match="unknown extra"):
+        sample_effect("drag", np.random.default_rng(0), 2.0, {"leg": 1.0})
+    # Fixed extras leave the seed's other draws alone.
+    a = sample_effect("blockage", np.random.default_rng(5), 1.0)
+    b = sample_effect("blockage", np.random.default_rng(5), 1.0, {"leg": 1.0 - a.extra["leg"]})
+    assert b.extra["leg"] == 1.0 - a.extra["leg"]
+
+
+def test_bad_requests_fail_clearly(pour):
+    rec = pour[0.3]
+    with pytest.raises(ValueError, match="fill fractions"):
+        infer_fill(rec, fractions=(0.3, 1.5))
+    with pytest.raises(KeyError, match="no container"):
+        infer_fill(rec, container="table")
+    with pytest.raises(ValueError, match="pipe_junction"):
+        infer_blockage(rec)
+    with pytest.raises(ValueError, match="tracking mode"):
+        infer_fill(rec, tracking="telepathy", fractions=(0.3,))
+    torch.set_num_threads(1)
