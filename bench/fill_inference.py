@@ -8,8 +8,8 @@ session fills its scene), then runs the bank over the first ``--seconds`` of the
 twice — all hypotheses in one state (batched) and each alone, one after another — and prints
 particles per hypothesis, simulation steps, scored frames, wall times and the speed-up, and
 the largest difference of the two runs' log likelihoods. Default recording: a full (not
-quick) generated ``pour_hold`` of a bottle, 90 % full, seed 5 (generated into
-``bench/results/`` when missing, ~1.5 min); default fractions 0.6–0.9 of the bottle give
+quick) generated ``pour_hold`` of a cup, 90 % full, seed 5 (generated into
+``bench/results/`` when missing, ~1.5 min; a 90 % bottle does not fit the generator's lattice); default fractions 0.6–0.9 of the cup give
 about 4k particles per hypothesis. A record (``what`` = "fill_inference") is appended to
 bench/history.jsonl.
 """
@@ -27,15 +27,15 @@ import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT = ROOT / "bench" / "results" / "fill_bench_bottle90_s5.mcap"
+DEFAULT = ROOT / "bench" / "results" / "fill_bench_cup90_s5.mcap"
 
 
 def _recording(path: Path):
     from liquidtwin.generate import generate
     from liquidtwin.recordings import read_recording
     if not path.exists():
-        print(f"generating {path} (full pour_hold, bottle 90 %, seed 5) ...", flush=True)
-        generate("pour_hold", path, seed=5, quick=False, choices={"source": "bottle", "fraction": 0.9})
+        print(f"generating {path} (full pour_hold, cup 90 %, seed 5) ...", flush=True)
+        generate("pour_hold", path, seed=5, quick=False, choices={"source": "cup", "fraction": 0.9})
     return read_recording(path, images=False)
 
 
