@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import add_common
+from .cli import add_common, save_results
 
 HELP = "pipe-junction blockage inference, 5 hypotheses, probability over time (thesis Fig. 7.7)"
 TRUTHS = ("none", "left_partial", "left_full", "right_partial", "right_full")
@@ -142,10 +142,7 @@ def run(args) -> int:
 
 
 def _save(args, doc: dict) -> Path:
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
-    return out
+    return save_results(args.out, doc)
 
 
 def format_table(results, modes, quick: bool, delta: float) -> str:

@@ -49,3 +49,29 @@ def add_common(p: argparse.ArgumentParser, *, out: str) -> None:
     p.add_argument("--jobs", type=int, default=2, metavar="N",
                    help="processes generating recordings (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+
+
+def selected_cases(args, **kw) -> list:
+    """The benchmark cases the common options select (``--quick/--trials/--seed``, then
+    ``--cases N`` first ones); checks ``--cases`` and ``--frames``. ``kw`` go to ``cases``."""
+    from .benchmark import cases
+    case_list = cases(quick=args.quick, trials=args.trials, base_seed=args.seed, **kw)
+    n = getattr(args, "cases", None)
+    if n is not None:
+        if n < 1:
+            raise SystemExit("--cases must be at least 1")
+        case_list = case_list[:n]
+    frames = getattr(args, "frames", None)
+    if frames is not None and frames < 2:
+        raise SystemExit("--frames must be at least 2")
+    return case_list
+
+
+def save_results(out, doc: dict):
+    """Write ``doc`` as ``out/results.json`` (folder created); returns the folder as a Path."""
+    import json
+    from pathlib import Path
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    return out

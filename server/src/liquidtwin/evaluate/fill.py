@@ -17,13 +17,12 @@ panel per true fill (mean distribution). Results: ``results.json``, ``fill.png``
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from .benchmark import cases, ensure
-from .cli import add_common
+from .cli import add_common, save_results
 
 HELP = "initial-fill inference (empty/30/60/90 %) on the pouring benchmark (thesis Fig. 7.6)"
 FILLS = (0.0, 0.3, 0.6, 0.9)
@@ -86,10 +85,7 @@ def run(args) -> int:
 
 
 def _save(args, doc: dict) -> Path:
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
-    return out
+    return save_results(args.out, doc)
 
 
 def format_table(results, modes, names, summary, quick, delta, args) -> str:

@@ -19,14 +19,13 @@ processes generate the missing recordings and then replay the cases (one case pe
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from .benchmark import cases, ensure
-from .cli import add_common
+from .benchmark import ensure
+from .cli import add_common, save_results, selected_cases
 from .replay import MODES, engine_for, replay
 
 HELP = "closed-loop tracking IOU per tracker on the pouring benchmark (thesis Fig. 7.5)"
@@ -152,13 +151,7 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: b
 def run(args) -> int:
     from tqdm import tqdm
     trackers = list(dict.fromkeys(args.trackers))
-    case_list = cases(quick=args.quick, trials=args.trials, base_seed=args.seed)
-    if args.cases is not None:
-        if args.cases < 1:
-            raise SystemExit("--cases must be at least 1")
-        case_list = case_list[:args.cases]
-    if args.frames is not None and args.frames < 2:
-        raise SystemExit("--frames must be at least 2")
+    case_list = selected_cases(args)
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
     work = [(str(p), tuple(trackers), args.frames) for p in paths]
@@ -180,7 +173,7 @@ def run(args) -> int:
     doc = {"kind": "tracking", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
            "frames": args.frames, "min_px": args.min_px, "trackers": trackers, "columns": columns,
            "table": tab, "table_text": text, "cases": results}
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    save_results(out, doc)
     _plots(out, tab, columns, results, args.min_px)
     return 0
 

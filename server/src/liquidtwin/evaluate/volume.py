@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .benchmark import cases, ensure
-from .cli import add_common
+from .benchmark import ensure
+from .cli import add_common, save_results, selected_cases
 from .replay import MODES, engine_for, replay
 
 HELP = "volume estimates (particle count per tracker, model-based from masks) vs truth, RMSE ml (SPEC §5)"
@@ -171,13 +171,7 @@ def format_table(tab: dict, note: str) -> str:
 def run(args) -> int:
     from tqdm import tqdm
     trackers = list(dict.fromkeys(args.trackers))
-    case_list = cases(quick=args.quick, trials=args.trials, base_seed=args.seed)
-    if args.cases is not None:
-        if args.cases < 1:
-            raise SystemExit("--cases must be at least 1")
-        case_list = case_list[:args.cases]
-    if args.frames is not None and args.frames < 2:
-        raise SystemExit("--frames must be at least 2")
+    case_list = selected_cases(args)
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
     for case, path in tqdm(list(zip(case_list, paths)), desc="replay", unit="case", disable=args.no_progress):
@@ -195,7 +189,7 @@ def run(args) -> int:
     doc = {"kind": "volume", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
            "frames": args.frames, "trackers": trackers, "pour_tilt_rad": POUR_TILT_RAD, "columns": list(COLUMNS),
            "table": tab, "table_text": text, "cases": results}
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    save_results(out, doc)
     _plots(out, tab, results)
     return 0
 
