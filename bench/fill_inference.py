@@ -9,8 +9,8 @@ twice — all hypotheses in one state (batched) and each alone, one after anothe
 particles per hypothesis, simulation steps, scored frames, wall times and the speed-up, and
 the largest difference of the two runs' log likelihoods. Default recording: a full (not
 quick) generated ``pour_hold`` of a cup, 90 % full, seed 5 (generated into
-``bench/results/`` when missing, ~1.5 min; a 90 % bottle does not fit the generator's lattice); default fractions 0.6–0.9 of the cup give
-about 4k particles per hypothesis. A record (``what`` = "fill_inference") is appended to
+``bench/results/`` when missing, ~1.5 min; a 90 % bottle does not fit the generator's lattice); default fractions 0.6–0.9 of the cup
+give 2.5k–3.6k particles per hypothesis (the generator's fills stop within ~7 %). A record (``what`` = "fill_inference") is appended to
 bench/history.jsonl.
 """
 
