@@ -300,6 +300,9 @@ class _BuggyEngine:
     def volumes(self):
         return {"cup": 1.0}
 
+    def mask_volumes(self):
+        return {}
+
     def control(self):
         return None
 
