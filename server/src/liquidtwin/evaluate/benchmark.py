@@ -114,20 +114,27 @@ def ensure(case_list, data: Path, *, jobs: int = 1, progress: bool = True) -> li
     """Generate the recordings of ``case_list`` missing from ``data`` (``jobs`` processes);
     return their paths in order. A recording counts as present when its case file exists
     (written last, so an interrupted generation is redone)."""
-    from tqdm import tqdm
     data = Path(data)
     data.mkdir(parents=True, exist_ok=True)
     missing = [c for c in case_list if not recording_path(data, c).with_suffix(".case.json").exists()]
-    if missing:
-        work = [(c.as_dict(), str(data)) for c in missing]
-        bar = tqdm(total=len(work), desc="generate benchmark", unit="rec", disable=not progress)
-        if jobs <= 1:
-            for w in work:
-                _generate_one(w)
-                bar.update()
-        else:
-            with mp.get_context("spawn").Pool(jobs) as pool:
-                for _ in pool.imap_unordered(_generate_one, work):
-                    bar.update()
-        bar.close()
+    generate_all(_generate_one, [(c.as_dict(), str(data)) for c in missing], jobs=jobs,
+                 desc="generate benchmark", progress=progress)
     return [recording_path(data, c) for c in case_list]
+
+
+def generate_all(fn, work: list, *, jobs: int, desc: str, progress: bool) -> None:
+    """Run ``fn(item)`` for every item of ``work`` (in ``jobs`` spawned processes when > 1),
+    with a progress bar counting finished items."""
+    from tqdm import tqdm
+    if not work:
+        return
+    bar = tqdm(total=len(work), desc=desc, unit="rec", disable=not progress)
+    if jobs <= 1:
+        for w in work:
+            fn(w)
+            bar.update()
+    else:
+        with mp.get_context("spawn").Pool(jobs) as pool:
+            for _ in pool.imap_unordered(fn, work):
+                bar.update()
+    bar.close()

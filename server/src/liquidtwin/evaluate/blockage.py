@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .benchmark import generate_all
 from .cli import add_common, save_results
 
 HELP = "pipe-junction blockage inference, 5 hypotheses, probability over time (thesis Fig. 7.7)"
@@ -72,23 +73,11 @@ def _generate(args) -> str:
 
 def ensure_pipes(case_list, data: Path, *, jobs: int = 1, progress: bool = True) -> list[Path]:
     """Generate the missing recordings (``jobs`` processes); their paths in order."""
-    import multiprocessing as mp
-    from tqdm import tqdm
     data = Path(data)
     data.mkdir(parents=True, exist_ok=True)
     paths = [data / f"{c.name}.mcap" for c in case_list]
     work = [(c.as_dict(), str(data)) for c, p in zip(case_list, paths) if not p.with_suffix(".case.json").exists()]
-    if work:
-        bar = tqdm(total=len(work), desc="generate pipes", unit="rec", disable=not progress)
-        if jobs <= 1:
-            for w in work:
-                _generate(w)
-                bar.update()
-        else:
-            with mp.get_context("spawn").Pool(jobs) as pool:
-                for _ in pool.imap_unordered(_generate, work):
-                    bar.update()
-        bar.close()
+    generate_all(_generate, work, jobs=jobs, desc="generate pipes", progress=progress)
     return paths
 
 
