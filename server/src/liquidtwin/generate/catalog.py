@@ -122,7 +122,7 @@ def _lip(model) -> np.ndarray:
     return np.array([-outer, top, 0.0])
 
 
-def _source_sites(index: int, model, fill_ml: float):
+def source_sites(index: int, model, fill_ml: float):
     """Leak (a radial hole through the wall, below the initial liquid surface) and blockage
     (a plate across the opening on the pouring side) of a round source container in its own
     frame."""
@@ -174,7 +174,7 @@ def _pour(kind: str, rng, quick: bool, source: str | None = None, target: str | 
     motion = mo.pour(kind, lip_local, lip_world, start=0.3 if quick else 0.5, speed=speed)
     source = SceneItem("source", source_name, {}, src_model, src_model.sdf(), motion, True)
     volume = round(fraction * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
-    leak, blockage = _source_sites(0, src_model, volume)
+    leak, blockage = source_sites(0, src_model, volume)
     centre = np.array([0.05, 0.5 * (rim_t + lip_world[1]), 0.0])
     # Raised ~35° like the thesis's tripod camera, so it sees into the target, not just its wall.
     cam = _camera(rng, centre + np.array([0.0, 0.36, 0.5]), centre, quick)
@@ -197,7 +197,7 @@ def _catching(rng, quick: bool) -> Setup:
     slide = mo.slide([start_x, 0.0, 0.0], [x_catch, 0.0, 0.0], start=0.2, duration=(1.0 if quick else 2.0))
     catcher = _item("catcher", "cup", slide, container=True)
     volume = round(0.6 * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
-    leak, blockage = _source_sites(0, src_model, volume)
+    leak, blockage = source_sites(0, src_model, volume)
     cam = _camera(rng, [0.0, 0.3, 0.85], [0.0, 0.2, 0.0], quick)
     duration = motion.end + (1.0 if quick else 2.5)
     return Setup("catching", (source, catcher, _table()), (("source", volume),), (cam,), duration, "catching",
@@ -215,7 +215,7 @@ def _pipe(rng, quick: bool) -> Setup:
     motion = mo.pour("hold", lip_local, lip_world, start=0.3, speed=speed)
     source = SceneItem("source", "cup", {}, src_model, src_model.sdf(), motion, True)
     volume = round(0.6 * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
-    leak, _ = _source_sites(0, src_model, volume)
+    leak, _ = source_sites(0, src_model, volume)
 
     def blockage(fraction, extra):
         leg = "left" if extra.get("leg", 0.0) < 0.5 else "right"

@@ -7,12 +7,12 @@ from .packing import calibrate, lattice, particle_radius, particle_volume
 from .pbf import FluidModel, FluidParams, FluidState, collide_move, make_state, rollout, step
 from .sdf import SDFGrid, conv_sdf, interpolate_poses, min_sdf, push_out, quat_from_axis_angle, quat_to_matrix
 from .sdf_ops import carve, cylinder_sdf, solidify
-from .terms import LinearDrag, QuadraticDrag, Term, UniformAcceleration, WallAdhesion
+from .terms import LinearAcceleration, LinearDrag, QuadraticDrag, Term, UniformAcceleration, WallAdhesion
 
 __all__ = [
     "ConvSP", "convsp", "KERNELS", "kernel_value", "Neighbors", "brute_force_neighbors", "cell_order",
     "find_neighbors", "calibrate", "lattice", "particle_radius", "particle_volume", "FluidModel", "FluidParams", "FluidState",
     "collide_move", "make_state", "rollout", "step", "SDFGrid", "conv_sdf", "interpolate_poses", "min_sdf",
-    "push_out", "quat_from_axis_angle", "quat_to_matrix", "LinearDrag", "QuadraticDrag", "Term", "UniformAcceleration", "WallAdhesion",
+    "push_out", "quat_from_axis_angle", "quat_to_matrix", "LinearAcceleration", "LinearDrag", "QuadraticDrag", "Term", "UniformAcceleration", "WallAdhesion",
     "carve", "cylinder_sdf", "solidify",
 ]

@@ -92,3 +92,16 @@ class WallAdhesion(Term):
         d = min_sdf(state.x, model.objects, state.poses.to(state.x))
         w = torch.clamp(1.0 - d / self.distance, 0.0, 1.0)[:, None]
         return -self.k.to(state.v) * w * state.v
+
+
+@dataclass(frozen=True, eq=False)
+class LinearAcceleration(Term):
+    """A learned correction linear in the velocity: a = W [v, 1]. ``W``: (3, 4) tensor
+    (columns: 1/s for the velocity part, m/s² for the constant part)."""
+
+    W: torch.Tensor
+    name = "learned"
+
+    def acceleration(self, model, state):
+        W = self.W.to(state.v)
+        return state.v @ W[:, :3].T + W[:, 3]
