@@ -193,6 +193,8 @@ from .service.cli import HELP as _SERVE_HELP, add_serve_parser, run_serve  # noq
 COMMANDS["serve"] = Command(_SERVE_HELP, run_serve, add_serve_parser)
 from .evaluate.cli import HELP as _EVAL_HELP, configure as _eval_configure, run as _eval_run  # noqa: E402
 COMMANDS["evaluate"] = Command(_EVAL_HELP, _eval_run, _eval_configure)
+from .discrepancy.cli import HELP as _DISC_HELP, configure as _disc_configure, run as _disc_run  # noqa: E402
+COMMANDS["discrepancy"] = Command(_DISC_HELP, _disc_run, _disc_configure)
 
 
 def build_parser() -> argparse.ArgumentParser:

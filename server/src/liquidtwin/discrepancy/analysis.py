@@ -1,0 +1,354 @@
+"""Discrepancy discovery, end to end (ARCHITECTURE.md, "Discrepancy report").
+
+1. Split: episodes alternate between fitting and held out when there are several, else
+   ``block_s`` time blocks alternate within the one recording. Only informative frames count:
+   those where the recording or the stated model shows liquid.
+2. Calibrate the base model's λ_v and λ_c on the fitting frames.
+3. Show what is wrong: the base model's residuals (per-frame IOU and coarse loss, where the
+   liquid is missing or extra, mass over time) and their structure (``evidence``).
+4. Name the cause: fit every candidate of the library on the fitting frames and rank them by
+   their gain on the held-out frames (95 % interval by resampling held-out blocks).
+5. Guard against false discovery: the best few are fitted again on data generated from the
+   fitted base model alone (``null_runs`` realisations, with mask noise); a candidate is
+   declared only when its held-out gain exceeds what it finds there. Otherwise ``none``, or
+   ``unexplained`` when the base model misses the data by more than it misses its own
+   realisations.
+
+Only the recordings are read; nothing here knows of truth sidecars.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from ..sensors.masks import MaskNoise, corrupt_mask
+from .candidates import LIBRARY, fit_candidate, main_value
+from .episode import load_episode
+from .evidence import evidence
+from .corrections import correction_evidence, fit_learned, pooled, tracker_corrections
+from .model import CANDIDATES, Extension, learned_params
+from .residuals import MIN_CELLS, cell_metrics, coarse, pixel_iou
+from .rollout import Simulator
+
+#: A candidate is declared when its held-out gain beats its best null gain by this factor…
+NULL_FACTOR = 1.5
+#: … and by at least this much loss (coarse-loss units).
+NULL_MARGIN = 0.02
+#: "unexplained": base held-out loss above this × the worst null realisation's base loss.
+UNEXPLAINED_FACTOR = 1.5
+#: Calibration tries the base's λ_v, then λ_c, at these multiples of the stated values.
+CALIBRATION_FACTORS = (0.75, 0.9, 1.1, 1.25)
+#: Mask noise of the null realisations (mid-range of what the generator's sensors draw).
+NULL_NOISE = MaskNoise(miss=0.05, false=1.5e-4, ragged_px=0.75, blob_px=4.0, speck_share=0.3)
+#: Initial-velocity jitter that makes a null realisation a different run of the same model, m/s.
+NULL_JITTER = 1e-3
+
+
+@dataclass(frozen=True)
+class Options:
+    """camera: which camera's masks (default: the first with masks); candidates: names from
+    the library to try; block_s: time-block length of the split, s; calibrate: fit λ_v, λ_c
+    of the base first; null_runs: base-model realisations for the null (0: no null — then
+    nothing is declared); top: how many best candidates are checked against the null;
+    bootstrap: resamples for the intervals; seed: of the null realisations and resampling."""
+
+    camera: str | None = None
+    candidates: tuple = CANDIDATES
+    block_s: float = 0.2
+    calibrate: bool = True
+    null_runs: int = 2
+    top: int = 3
+    bootstrap: int = 2000
+    seed: int = 0
+
+    def __post_init__(self):
+        bad = [c for c in self.candidates if c not in LIBRARY]
+        if bad:
+            raise ValueError(f"unknown candidate(s) {bad}; known: {', '.join(LIBRARY)}")
+        if not self.block_s > 0:
+            raise ValueError(f"block_s must be > 0 s, got {self.block_s}")
+        if self.null_runs < 0 or self.top < 1 or self.bootstrap < 100:
+            raise ValueError("null_runs must be >= 0, top >= 1, bootstrap >= 100")
+
+
+@dataclass
+class _Data:
+    """Observed coarse cells per episode, and which frames fit / are held out (block ids)."""
+
+    cells: list
+    fit: list
+    held: list
+    blocks: list
+
+
+def _key(ext: Extension) -> tuple:
+    return (ext.name, tuple(sorted(ext.params.items())), tuple(sorted(ext.base.items())))
+
+
+class _Evaluator:
+    """Renders extensions on every episode once (cached: coarse cells + pixel IOU vs the
+    recording) and scores them against any set of observed cells."""
+
+    def __init__(self, sims, bar):
+        self.sims, self.bar = sims, bar
+        self._cells: dict = {}
+        self._iou: dict = {}
+        self._traj: dict = {}
+        self.evaluations = 0
+        self.frames = [None] * len(sims)
+
+    def restrict(self, frames: list) -> None:
+        """Draw only these mask frames (index arrays per episode) from now on."""
+        self.frames = list(frames)
+        self._cells.clear()
+        self._iou.clear()
+
+    def _trajectories(self, ext: Extension):
+        phys = ext if not LIBRARY.get(ext.name) or not LIBRARY[ext.name].observation else Extension("none", {}, ext.base)
+        k = _key(phys)
+        if k not in self._traj:
+            if len(self._traj) > 64:
+                self._traj.clear()
+            self._traj[k] = [s.rollout(phys) for s in self.sims]
+        return self._traj[k]
+
+    def cells(self, ext: Extension) -> list:
+        k = _key(ext)
+        if k not in self._cells:
+            trajs = self._trajectories(ext)
+            masks = [s.render(t, f, ext=ext) for s, t, f in zip(self.sims, trajs, self.frames)]
+            self._cells[k] = [coarse(m) for m in masks]
+            self._iou[k] = [pixel_iou(m, s.ep.masks if f is None else s.ep.masks[f])
+                            for m, s, f in zip(masks, self.sims, self.frames)]
+            self.evaluations += 1
+            self.bar.update()
+        return self._cells[k]
+
+    def iou(self, ext: Extension) -> list:
+        self.cells(ext)
+        return self._iou[_key(ext)]
+
+    def losses(self, ext: Extension, obs_cells: list) -> list:
+        return [cell_metrics(cm, co)["loss"] for cm, co in zip(self.cells(ext), obs_cells)]
+
+    def fit_loss(self, ext: Extension, data: _Data) -> float:
+        ls = self.losses(ext, data.cells)
+        return float(np.concatenate([l[f] for l, f in zip(ls, data.fit)]).mean())
+
+
+def _split(eps, block_s: float, frames: list) -> tuple[_Data, dict]:
+    """Fit / held-out split over the informative ``frames`` (index arrays per episode)."""
+    cells = [coarse(e.masks[f]) for e, f in zip(eps, frames)]
+    fit, held, blocks = [], [], []
+    if len(eps) >= 2:
+        for i, f in enumerate(frames):
+            fit.append(np.full(len(f), i % 2 == 0))
+            held.append(np.full(len(f), i % 2 == 1))
+            blocks.append(np.full(len(f), i))
+        desc = {"by": "episode", "fit": [str(e.path) for i, e in enumerate(eps) if i % 2 == 0],
+                "held_out": [str(e.path) for i, e in enumerate(eps) if i % 2 == 1]}
+    else:
+        b = np.floor(eps[0].frame_t[frames[0]] / block_s).astype(int)
+        fit.append(b % 2 == 0)
+        held.append(b % 2 == 1)
+        blocks.append(b)
+        desc = {"by": "time_block", "block_s": block_s,
+                "fit_blocks_s": [[float(k * block_s), float((k + 1) * block_s)] for k in sorted(set(b[b % 2 == 0]))],
+                "held_out_blocks_s": [[float(k * block_s), float((k + 1) * block_s)] for k in sorted(set(b[b % 2 == 1]))]}
+    desc["fit_frames"] = int(sum(f.sum() for f in fit))
+    desc["held_out_frames"] = int(sum(h.sum() for h in held))
+    if desc["held_out_frames"] == 0 or desc["fit_frames"] == 0:
+        raise ValueError("too little liquid is seen to split the data into fitting and held-out parts "
+                         f"({desc['fit_frames']} and {desc['held_out_frames']} frames with liquid, block {block_s} s); "
+                         "give a shorter --block or more recordings")
+    return _Data(cells, fit, held, blocks), desc
+
+
+def _held(values: list, data: _Data) -> tuple[np.ndarray, np.ndarray]:
+    v = np.concatenate([x[h] for x, h in zip(values, data.held)])
+    b = np.concatenate([np.asarray(k)[h] + 1000 * i for i, (k, h) in enumerate(zip(data.blocks, data.held))])
+    return v, b
+
+
+def interval(values: np.ndarray, blocks: np.ndarray, rng, n: int) -> list:
+    """95 % interval of the mean of ``values`` by resampling whole ``blocks``."""
+    ids = np.unique(blocks)
+    groups = [values[blocks == i] for i in ids]
+    means = []
+    for _ in range(n):
+        pick = rng.integers(len(groups), size=len(groups))
+        means.append(np.concatenate([groups[k] for k in pick]).mean())
+    lo, hi = np.percentile(means, [2.5, 97.5])
+    return [float(lo), float(hi)]
+
+
+def _null_cells(sims, frames, base: Extension, run: int, seed: int) -> list:
+    """Observed cells of one realisation of the fitted base model (noisy masks)."""
+    rng = np.random.default_rng([seed, run])
+    gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
+    out = []
+    for s, f in zip(sims, frames):
+        x0, v0 = s.initial(base.fill_scale)
+        jitter = NULL_JITTER * torch.randn(v0.shape, generator=gen)
+        traj = s.rollout(base, initial=(x0, v0 + jitter))
+        masks = s.render(traj, f, ext=base)
+        out.append(coarse(np.stack([corrupt_mask(m, rng, NULL_NOISE) for m in masks])))
+    return out
+
+
+def _fit_times(ep, ts, fit: np.ndarray, frames) -> np.ndarray:
+    """Which correction samples (times ``ts``) fall on this episode's fitting frames."""
+    return np.isin(np.round(ts * 1e6), np.round(ep.frame_t[frames][fit] * 1e6))
+
+
+def analyse(sources, out=None, *, options: Options | None = None, progress: bool = False) -> dict:
+    """Run discrepancy discovery on recordings ``sources`` (MCAP paths or Recordings).
+
+    Returns the report (dict, ARCHITECTURE.md contract plus ``model``: the extended model as a
+    model file, ``timing_s`` per stage); with ``out`` also writes report.json, report.md and
+    PNG plots there (``discrepancy.report``)."""
+    opt = options or Options()
+    t0 = time.perf_counter()
+    timing = {}
+    sources = list(sources) if isinstance(sources, (list, tuple)) else [sources]
+    if not sources:
+        raise ValueError("no recordings given")
+    eps = [load_episode(s, opt.camera) for s in sources]
+    bar = tqdm(desc="discrepancy", unit="model", disable=not progress, leave=False)
+    sims = [Simulator(e) for e in eps]
+    ev = _Evaluator(sims, bar)
+    # Frames where neither the recording nor the stated model shows liquid say nothing.
+    frames = [np.nonzero((coarse(e.masks).sum((1, 2)) >= MIN_CELLS) | (c.sum((1, 2)) >= MIN_CELLS))[0]
+              for e, c in zip(eps, ev.cells(Extension()))]
+    data, split = _split(eps, opt.block_s, frames)
+    ev.restrict(frames)
+    rng = np.random.default_rng(opt.seed)
+    timing["build"] = time.perf_counter() - t0
+
+    # 1. calibrate the base
+    t = time.perf_counter()
+    base = Extension()
+    calib = []
+    if opt.calibrate:
+        defaults = {"lambda_v": float(sims[0].model.params.lambda_v), "lambda_c": float(sims[0].model.params.lambda_c)}
+        best = ev.fit_loss(base, data)
+        for key in ("lambda_v", "lambda_c"):
+            for f in CALIBRATION_FACTORS:
+                trial = Extension("none", {}, {**base.base, key: defaults[key] * f})
+                loss = ev.fit_loss(trial, data)
+                calib.append({"base": trial.base, "fit_loss": loss})
+                if loss < best:
+                    best, base = loss, trial
+    timing["calibrate"] = time.perf_counter() - t
+
+    # 2. what is wrong
+    t = time.perf_counter()
+    base_loss = ev.losses(base, data.cells)
+    base_iou = ev.iou(base)
+    evid = evidence(eps, sims, ev.cells(base), data.cells, base_loss)
+    timing["residuals"] = time.perf_counter() - t
+    t = time.perf_counter()
+    corrections = [tracker_corrections(e, base) for e in eps]
+    tracker = correction_evidence(pooled(corrections))
+    for name in ("drag", "wind", "wall_adhesion"):
+        evid[name] = {**evid[name], "tracker": tracker}
+    timing["tracker_corrections"] = time.perf_counter() - t
+
+    # 3. fit and rank every candidate
+    t = time.perf_counter()
+    held_base, blocks = _held(base_loss, data)
+    held_base_iou, _ = _held(base_iou, data)
+    ranked = []
+    for name in opt.candidates:
+        bar.set_postfix_str(name)
+        ext, fit_loss, trace = fit_candidate(name, lambda e: ev.fit_loss(e, data), base.base)
+        held_ext, _ = _held(ev.losses(ext, data.cells), data)
+        held_iou, _ = _held(ev.iou(ext), data)
+        gain = held_base - held_ext
+        ranked.append({"name": name, "params": dict(ext.params), "value": main_value(ext),
+                       "heldout_gain": {"mean": float(gain.mean()), "ci95": interval(gain, blocks, rng, opt.bootstrap),
+                                        "unit": "coarse loss"},
+                       "heldout_iou_gain": float(held_iou.mean() - held_base_iou.mean()),
+                       "fit_loss": fit_loss, "evaluations": len(trace), "evidence": evid.get(name, {}),
+                       "_ext": ext})
+    ranked.sort(key=lambda c: -c["heldout_gain"]["mean"])
+    timing["fit"] = time.perf_counter() - t
+
+    # 4. the null
+    t = time.perf_counter()
+    null_base = []
+    if opt.null_runs:
+        for c in ranked[: opt.top]:
+            c["null_gains"] = []
+        for run in range(opt.null_runs):
+            cells = _null_cells(sims, frames, base, run, opt.seed)
+            nd = _Data(cells, data.fit, data.held, data.blocks)
+            nb, _ = _held(ev.losses(base, cells), data)
+            null_base.append(float(nb.mean()))
+            for c in ranked[: opt.top]:
+                ext, _, _ = fit_candidate(c["name"], lambda e: ev.fit_loss(e, nd), base.base)
+                ne, _ = _held(ev.losses(ext, cells), data)
+                c["null_gains"].append(float((nb - ne).mean()))
+    timing["null"] = time.perf_counter() - t
+    bar.close()
+
+    decision, chosen = "none", base
+    for c in ranked[: opt.top]:
+        if "null_gains" not in c:
+            c["declared"] = False
+            continue
+        thr = max(NULL_FACTOR * max(c["null_gains"]), 0.0) + NULL_MARGIN
+        c["null_threshold"] = thr
+        c["declared"] = bool(c["heldout_gain"]["ci95"][0] > 0 and c["heldout_gain"]["mean"] > thr)
+        if c["declared"] and decision == "none":
+            decision, chosen = c["name"], c["_ext"]
+    residual_real = bool(null_base) and float(held_base.mean()) > UNEXPLAINED_FACTOR * max(null_base)
+    learned = None
+    if decision == "none" and residual_real:
+        decision = "unexplained"
+        # the minimum-norm learned correction, fitted on the fitting part's tracker corrections
+        keep = (lambda i, ts: _fit_times(eps[i], ts, data.fit[i], frames[i]))
+        chosen = Extension("learned", learned_params(fit_learned(pooled(corrections, keep))), base.base)
+        held_l, _ = _held(ev.losses(chosen, data.cells), data)
+        gain = held_base - held_l
+        learned = {"params": dict(chosen.params), "heldout_gain": {"mean": float(gain.mean()),
+                                                                   "ci95": interval(gain, blocks, rng, opt.bootstrap)}}
+    for c in ranked:
+        c.pop("_ext")
+
+    held_chosen, _ = _held(ev.losses(chosen, data.cells), data)
+    held_chosen_iou, _ = _held(ev.iou(chosen), data)
+    report = {
+        "decision": decision,
+        "candidates": ranked,
+        "baseline": {"heldout_loss": float(held_base.mean()), "heldout_iou": float(held_base_iou.mean()),
+                     "ci95_loss": interval(held_base, blocks, rng, opt.bootstrap), "params": base.base or "defaults"},
+        "extended": {"name": chosen.name, "heldout_loss": float(held_chosen.mean()),
+                     "heldout_iou": float(held_chosen_iou.mean()),
+                     "ci95_loss": interval(held_chosen, blocks, rng, opt.bootstrap)},
+        "split": split,
+        "learned": learned,
+        "tracker_corrections": tracker,
+        "calibration": calib,
+        "null": {"runs": opt.null_runs, "base_heldout_loss": null_base, "factor": NULL_FACTOR, "margin": NULL_MARGIN,
+                 "unexplained_factor": UNEXPLAINED_FACTOR, "residual_real": residual_real},
+        "model": chosen.as_dict(),
+        "recordings": [str(e.path) for e in eps],
+        "camera": eps[0].camera.name,
+        "evaluations": ev.evaluations,
+        "timing_s": {**{k: round(v, 2) for k, v in timing.items()}, "total": round(time.perf_counter() - t0, 2)},
+        "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in opt.__dict__.items()},
+    }
+    report["_series"] = {"t": [e.frame_t[f].tolist() for e, f in zip(eps, frames)], "base_iou": [x.tolist() for x in base_iou],
+                         "extended_iou": [x.tolist() for x in ev.iou(chosen)],
+                         "base_loss": [x.tolist() for x in base_loss],
+                         "held": [h.tolist() for h in data.held]}
+    if out is not None:
+        from .report import write_report
+        write_report(report, out, eps, ev.cells(base), ev.cells(chosen), data.cells)
+    return report

@@ -1,0 +1,130 @@
+"""The candidate library: each named cause, its parameters, and how they are fitted.
+
+Every candidate is fitted by the same rule: a coarse search over the parameter's realistic
+range (log-spaced where the parameter is a rate), then refinement between the best value and
+its neighbours. Every evaluation is a full open-loop rollout of the extended model through the
+fitting frames (physics and initial-fill candidates) or a re-drawing of the base rollout
+(observation candidates: time and camera offsets change what the camera shows, not the liquid).
+
+``objective(ext) -> float`` is supplied by the analysis (mean fitting loss of the extension).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .model import CANDIDATES, OBSERVATION, Extension
+
+#: Refinement rounds after the coarse grid (each halves the bracket: 2 evaluations).
+REFINE = 2
+
+
+@dataclass(frozen=True)
+class Candidate:
+    name: str
+    doc: str
+    grid: tuple            # coarse values of the main parameter
+    key: str               # its name in Extension.params
+    log: bool = False
+
+    @property
+    def observation(self) -> bool:
+        return self.name in OBSERVATION
+
+
+LIBRARY = {c.name: c for c in (
+    Candidate("drag", "quadratic air drag on fast particles, a = −c|v|v", (0.4, 1.2, 3.0, 7.0), "c", True),
+    Candidate("wind", "uniform horizontal acceleration (ax, az)", (1.2,), "a"),
+    Candidate("viscosity", "XSPH viscosity λ_v other than calibrated", (8.0, 20.0, 110.0, 160.0), "lambda_v", True),
+    Candidate("cohesion", "cohesion λ_c other than calibrated", (0.03, 0.2, 0.35, 0.55), "lambda_c", True),
+    Candidate("wall_adhesion", "particles within a spacing of a wall slowed at rate k", (5.0, 15.0, 35.0, 70.0), "k", True),
+    Candidate("leak", "a hole in the source container's wall", (0.003, 0.005, 0.008), "radius"),
+    Candidate("blockage", "part of the source's opening blocked on the pouring side", (0.4, 0.7, 1.0), "fraction"),
+    Candidate("fill_error", "true initial fill = stated × (1 + value)", (-0.4, -0.2, 0.2, 0.4), "value"),
+    Candidate("time_offset", "images stamped t show time t − s",
+              tuple(np.round(np.arange(-0.3, 0.3001, 0.05), 3).tolist()), "s"),
+    Candidate("camera_offset", "stated camera rotated by (rx, ry, rz) deg", (-2.4, -1.2, 1.2, 2.4), "r"),
+)}
+assert tuple(LIBRARY) == CANDIDATES
+
+#: Leak sites tried (height as a share of the liquid depth, azimuth from +x; the lip is at 180°).
+LEAK_SITES = ((0.4, 150.0), (0.4, 180.0), (0.4, 210.0))
+WIND_DIRECTIONS = 8
+
+
+def _ext(name: str, base: dict, **params) -> Extension:
+    return Extension(name, {k: float(v) for k, v in params.items()}, dict(base))
+
+
+def _line(f: Callable[[float], float], grid, log: bool, lo=None, hi=None) -> tuple[float, float, list]:
+    """Minimise f over ``grid`` then refine around the best point. Returns (x, f(x), trace)."""
+    trace = [(float(g), f(float(g))) for g in grid]
+    for _ in range(REFINE):
+        xs = sorted(trace)
+        k = min(range(len(xs)), key=lambda i: xs[i][1])
+        for j in (k - 1, k + 1):
+            if 0 <= j < len(xs):
+                a, b = xs[k][0], xs[j][0]
+                mid = math.sqrt(a * b) if (log and a > 0 and b > 0) else 0.5 * (a + b)
+                if all(abs(mid - t[0]) > 1e-9 for t in trace):
+                    trace.append((mid, f(mid)))
+    x, fx = min(trace, key=lambda t: t[1])
+    return x, fx, trace
+
+
+def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict) -> tuple[Extension, float, list]:
+    """Fit candidate ``name``; returns (best extension, its fitting loss, [(params, loss), …])."""
+    c = LIBRARY[name]
+    trace = []
+
+    def run(**params) -> float:
+        ext = _ext(name, base, **params)
+        val = float(objective(ext))
+        trace.append((dict(ext.params), val))
+        return val
+
+    if name == "wind":
+        dirs = [2 * math.pi * k / WIND_DIRECTIONS for k in range(WIND_DIRECTIONS)]
+        a0 = c.grid[0]
+        scores = [run(ax=a0 * math.cos(t), az=a0 * math.sin(t)) for t in dirs]
+        t = dirs[int(np.argmin(scores))]
+        # refine the azimuth between the best and its better neighbour, then the magnitude
+        k = int(np.argmin(scores))
+        nb = dirs[(k + 1) % WIND_DIRECTIONS] if scores[(k + 1) % WIND_DIRECTIONS] < scores[k - 1] else dirs[k - 1]
+        tm = math.atan2(math.sin(t) + math.sin(nb), math.cos(t) + math.cos(nb))
+        if run(ax=a0 * math.cos(tm), az=a0 * math.sin(tm)) < min(scores):
+            t = tm
+        _line(lambda a: run(ax=a * math.cos(t), az=a * math.sin(t)), (0.5, a0, 2.4), True)
+    elif name == "leak":
+        r0 = c.grid[1]
+        site = min(LEAK_SITES, key=lambda s: run(radius=r0, height_fraction=s[0], azimuth_deg=s[1]))
+        _line(lambda r: run(radius=r, height_fraction=site[0], azimuth_deg=site[1]), (0.003, 0.008), False)
+    elif name == "camera_offset":
+        r = [0.0, 0.0, 0.0]
+        for _ in range(2):                     # coordinate descent over the three axes
+            for axis in range(3):
+                def f(v, axis=axis):
+                    rr = list(r)
+                    rr[axis] = v
+                    return run(rx=rr[0], ry=rr[1], rz=rr[2])
+                grid = c.grid if r[axis] == 0.0 else (r[axis] - 0.6, r[axis] + 0.6)
+                v, fv, tr = _line(f, tuple(grid) + (r[axis],), False)
+                r[axis] = v
+    else:
+        _line(lambda v: run(**{c.key: v}), c.grid, c.log)
+    params, loss = min(trace, key=lambda t: t[1])
+    return _ext(name, base, **params), loss, trace
+
+
+def main_value(ext: Extension) -> float:
+    """The one magnitude compared with a planted effect's ``value`` (its unit)."""
+    p = ext.params
+    if ext.name == "wind":
+        return math.hypot(p["ax"], p["az"])
+    if ext.name == "camera_offset":
+        return math.sqrt(p["rx"] ** 2 + p["ry"] ** 2 + p["rz"] ** 2)
+    return float(p[LIBRARY[ext.name].key])

@@ -1,0 +1,83 @@
+"""What the discrepancy analysis reads: one recording's masks and poses, nothing else.
+
+An :class:`Episode` is a recording reduced to the data the analysis may use — the scene it
+states, the object poses, one camera's stated calibration and its liquid masks — on a session
+clock (first pose sample = 0 s). Truth sidecars are never opened here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from liquidtwin_proto import liquidtwin_pb2 as pb
+
+from ..camera import Camera
+from ..recordings import read_recording
+from ..recordings._interp import interpolate_poses
+
+
+@dataclass(frozen=True, eq=False)
+class Episode:
+    """One recording, as the analysis sees it.
+
+    Attributes:
+      path: the MCAP file. spec: its scene as a SessionSpec (stated fills, objects, sim).
+      object_names: n objects in the scene's order.
+      pose_t: (T,) s pose sample times; poses: (T, n, 7) object → world poses.
+      camera: the stated :class:`Camera` the masks came from.
+      frame_t: (M,) s mask times; masks: (M, H, W) bool observed liquid.
+    """
+
+    path: Path
+    spec: pb.SessionSpec
+    object_names: tuple
+    pose_t: np.ndarray
+    poses: np.ndarray
+    camera: Camera
+    frame_t: np.ndarray
+    masks: np.ndarray
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.pose_t[-1])
+
+    def poses_at(self, t: np.ndarray) -> np.ndarray:
+        """(len(t), n, 7) object poses at session times ``t`` s (lerp/slerp, held at the ends)."""
+        ns = np.round(np.clip(np.asarray(t, float), 0.0, self.pose_t[-1]) * 1e9).astype(np.int64)
+        times = np.round(self.pose_t * 1e9).astype(np.int64)
+        return np.stack([interpolate_poses(times, self.poses[:, j], ns) for j in range(self.poses.shape[1])], 1)
+
+
+def camera_from_info(info, name: str = "camera") -> Camera:
+    """A :class:`Camera` from a recording's CameraInfo (K, D, size, pose)."""
+    K = np.asarray(info.K, float).reshape(3, 3)
+    return Camera(width=int(info.width), height=int(info.height), fx=float(K[0, 0]), fy=float(K[1, 1]),
+                  cx=float(K[0, 2]), cy=float(K[1, 2]), pose=torch.tensor(np.asarray(info.pose, float)),
+                  distortion=torch.tensor(np.asarray(info.D, float)), name=name)
+
+
+def load_episode(source, camera: str | None = None) -> Episode:
+    """An :class:`Episode` from an MCAP path or a Recording (``camera``: default the first
+    with masks). Raises ValueError when the recording cannot be analysed."""
+    rec = read_recording(source, images=False) if isinstance(source, (str, Path)) else source
+    if rec.spec is None:
+        raise ValueError(f"{rec.path}: no /scene in the recording; the model cannot be built")
+    if not rec.masks:
+        raise ValueError(f"{rec.path}: no liquid masks in the recording; there is nothing to compare with")
+    camera = camera or next(iter(rec.masks))
+    if camera not in rec.masks:
+        raise ValueError(f"{rec.path}: no masks from camera {camera!r} (cameras with masks: {sorted(rec.masks)})")
+    if len(rec.pose_times_ns) < 2:
+        raise ValueError(f"{rec.path}: fewer than 2 pose samples")
+    t0 = int(rec.pose_times_ns[0])
+    stamps, masks = rec.masks[camera]
+    keep = (stamps >= t0) & (stamps <= int(rec.pose_times_ns[-1]))
+    if not keep.any():
+        raise ValueError(f"{rec.path}: no mask of camera {camera!r} lies within the pose samples")
+    info = rec.camera_at(camera, int(stamps[keep][0]))
+    return Episode(Path(rec.path), pb.SessionSpec(scene=rec.spec), tuple(rec.object_names),
+                   (rec.pose_times_ns - t0) * 1e-9, np.asarray(rec.poses, float), camera_from_info(info, camera),
+                   (stamps[keep] - t0) * 1e-9, np.asarray(masks[keep], bool))

@@ -1,0 +1,120 @@
+"""Roll a (possibly extended) model through an episode and draw what its camera would see.
+
+:class:`Simulator` builds the episode's scene once (objects, model, the stated fill settled),
+then :meth:`Simulator.rollout` runs a model :class:`~.model.Extension` open loop through the
+recorded object poses and keeps every step's particles, so observation candidates (time and
+camera offsets) re-draw the same rollout instead of simulating again. Model masks are the
+session's: each visible particle drawn as its projected sphere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..camera import sphere_coverage, sphere_radius_px, visible
+from ..generate.catalog import source_sites
+from ..scenes.fill import fill_container
+from ..session._build import SETTLE_S, build_scene
+from ..session._cull import cull_fallen
+from ..session.engine import MIN_RADIUS_PX, NEAR_M, OCCLUSION_MARGIN_PX
+from ..sim import make_state, particle_radius, step
+from .episode import Episode
+from .model import Extension, apply_physics, camera_for
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """One rollout: ``x[k]`` (N_k, 3) float32 particles after step k (k = 0 is the fill, time
+    k·dt), ``poses`` (S + 1, n, 7) the object poses used, ``ext`` the extension simulated."""
+
+    x: list
+    poses: np.ndarray
+    dt: float
+    ext: Extension
+
+    def at(self, t: float) -> int:
+        return int(np.clip(round(t / self.dt), 0, len(self.x) - 1))
+
+
+class Simulator:
+    """The episode's scene, built once; rollouts of any extension of its model."""
+
+    def __init__(self, ep: Episode, *, progress: bool = False):
+        self.ep = ep
+        self.scene = build_scene(ep.spec, progress=progress)
+        self.model = self.scene.model
+        self.dt = float(self.model.dt)
+        self.radius_m = particle_radius(float(self.model.spacing))
+        self.steps = int(np.ceil(ep.duration_s / self.dt - 1e-9))
+        self.step_poses = ep.poses_at(np.arange(self.steps + 1) * self.dt)
+        names = list(self.scene.names)
+        fills = {f.container: f for f in ep.spec.scene.fills}
+        self.source = next(iter(fills))
+        self._source_index = names.index(self.source)
+        obj = self.scene.objects[self._source_index]
+        stated = self.scene.fills[self.source].settled_ml
+        try:
+            self.sites = source_sites(self._source_index, obj, stated)
+        except (AttributeError, ValueError):
+            self.sites = None            # not a round container: no leak / blockage site
+        self._fills: dict[float, tuple] = {1.0: self.scene.state.by_id()}
+
+    def initial(self, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """(x, v) of the fill with the source's stated volume × ``scale`` (cached)."""
+        key = round(float(scale), 4)
+        if key not in self._fills:
+            k = self._source_index
+            rep = self.scene.fills[self.source]
+            poses = torch.as_tensor(self.scene.initial_poses)
+            s, _ = fill_container(self.model, poses, k, self.scene.objects[k],
+                                  volume_ml=max(rep.asked_ml * key, 1e-3), settle_s=SETTLE_S)
+            xs, vs = s.by_id()
+            # other containers' fills are kept as they are
+            x0, v0 = self._fills[1.0]
+            others = [n for n in self.scene.fills if n != self.source]
+            if others:
+                m = sum(self.scene.fills[n].particles for n in others)
+                xs, vs = torch.cat([xs, x0[-m:]]), torch.cat([vs, v0[-m:]])
+            self._fills[key] = (xs.float(), vs.float())
+        return self._fills[key]
+
+    def rollout(self, ext: Extension, *, steps: int | None = None, initial=None) -> Trajectory:
+        """Run ``ext``'s model open loop from its initial fill (or ``initial`` = (x, v)) through
+        the recorded poses."""
+        model = apply_physics(ext, self.model, self.sites)
+        x0, v0 = self.initial(ext.fill_scale) if initial is None else initial
+        poses = torch.as_tensor(self.step_poses)
+        state = make_state(x0, v0, poses=poses[0], dtype=torch.float32)
+        n = self.steps if steps is None else min(steps, self.steps)
+        xs = [state.by_id()[0].numpy().copy()]
+        with torch.no_grad():
+            for k in range(n):
+                state = step(model, state, poses[k + 1].to(torch.float32))
+                state, _ = cull_fallen(state, model.objects)
+                xs.append(state.x.numpy().copy())
+        return Trajectory(xs, self.step_poses[: n + 1], self.dt, ext)
+
+    def render(self, traj: Trajectory, frames=None, *, ext: Extension | None = None) -> np.ndarray:
+        """(F, H, W) bool model masks at the episode's mask ``frames`` (indices, default all),
+        with the observation part (time / camera offset) of ``ext`` (default: the rollout's)."""
+        ext = traj.ext if ext is None else ext
+        cam = camera_for(ext, self.ep.camera)
+        frames = range(len(self.ep.frame_t)) if frames is None else frames
+        occ = list(self.scene.occluders)
+        grids = [self.model.objects[k] for k in occ]
+        out = np.zeros((len(frames), cam.height, cam.width), bool)
+        with torch.no_grad():
+            for i, j in enumerate(frames):
+                k = traj.at(float(self.ep.frame_t[j]) - ext.time_offset_s)
+                x = torch.from_numpy(traj.x[k])
+                if x.shape[0] == 0:
+                    continue
+                poses = torch.as_tensor(traj.poses[k], dtype=torch.float32)
+                seen = visible(cam, x, grids, poses[occ], margin_px=OCCLUSION_MARGIN_PX, near=NEAR_M)
+                uv, depth = cam.project(x)
+                r = sphere_radius_px(cam.fx, depth, self.radius_m, min_px=MIN_RADIUS_PX)
+                out[i] = (sphere_coverage(uv, r, seen, cam.height, cam.width) > 0).cpu().numpy()
+        return out

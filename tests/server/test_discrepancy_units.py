@@ -1,0 +1,126 @@
+"""Discrepancy discovery's parts, each against something independent: model files round-trip
+and reject bad input, extensions change exactly what they name, the residual metrics equal
+hand-computed values, the block-resampled interval covers the mean."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from liquidtwin.discrepancy import CANDIDATES, Extension, Options, apply_physics, camera_for, load_model, save_model
+from liquidtwin.discrepancy.analysis import interval
+from liquidtwin.discrepancy.candidates import LIBRARY, _line, main_value
+from liquidtwin.discrepancy.model import model_from_dict, rotation_deg
+from liquidtwin.discrepancy.residuals import CELL, EMPTY_W1, cell_metrics, coarse, pixel_iou
+from liquidtwin.camera import Camera
+from liquidtwin.sim import FluidModel, QuadraticDrag, UniformAcceleration, WallAdhesion
+
+
+def test_library_covers_the_canonical_names():
+    assert set(CANDIDATES) == set(LIBRARY) == {"drag", "wind", "viscosity", "cohesion", "wall_adhesion", "leak",
+                                                "blockage", "fill_error", "time_offset", "camera_offset"}
+
+
+def test_model_file_round_trip(tmp_path):
+    ext = Extension("drag", {"c": 2.5}, {"lambda_v": 55.0})
+    path = save_model(ext, tmp_path / "m.json")
+    assert load_model(path) == ext
+
+
+@pytest.mark.parametrize("doc, word", [
+    ({"version": 1, "name": "gremlins"}, "unknown model extension"),
+    ({"version": 7, "name": "drag"}, "version"),
+    ({"version": 1, "name": "drag", "params": {"c": float("nan")}}, "finite"),
+    ({"version": 1, "name": "drag", "base": {"rho0": 1.0}}, "lambda_v and lambda_c only"),
+    ({"version": 1, "name": "drag", "extra": 1}, "unknown fields"),
+    ([1, 2], "JSON object"),
+])
+def test_bad_model_files_are_refused_clearly(doc, word):
+    with pytest.raises(ValueError, match=word):
+        model_from_dict(doc)
+
+
+def test_garbage_model_file(tmp_path):
+    p = tmp_path / "bad.json"
+    p.write_text("{not json")
+    with pytest.raises(ValueError, match="not a JSON model file"):
+        load_model(p)
+
+
+def test_physics_extensions_change_what_they_name():
+    m = FluidModel.create(0.011, dt=1 / 120)
+    assert isinstance(apply_physics(Extension("drag", {"c": 2.0}), m).terms[-1], QuadraticDrag)
+    wind = apply_physics(Extension("wind", {"ax": 1.0, "az": -0.5}), m).terms[-1]
+    assert isinstance(wind, UniformAcceleration) and wind.a.tolist() == [1.0, 0.0, -0.5]
+    assert isinstance(apply_physics(Extension("wall_adhesion", {"k": 20.0}), m).terms[-1], WallAdhesion)
+    assert float(apply_physics(Extension("viscosity", {"lambda_v": 12.0}), m).params.lambda_v) == 12.0
+    assert float(apply_physics(Extension("cohesion", {"lambda_c": 0.3}), m).params.lambda_c) == pytest.approx(0.3)
+    calibrated = apply_physics(Extension("none", {}, {"lambda_v": 70.0}), m)
+    assert float(calibrated.params.lambda_v) == 70.0 and calibrated.terms == m.terms
+    with pytest.raises(ValueError, match="source container"):
+        apply_physics(Extension("leak", {"radius": 0.004, "height_fraction": 0.4, "azimuth_deg": 180.0}), m)
+    assert Extension("fill_error", {"value": -0.2}).fill_scale == pytest.approx(0.8)
+    assert Extension("time_offset", {"s": 0.1}).time_offset_s == 0.1 and Extension().time_offset_s == 0.0
+
+
+def test_camera_offset_rotates_about_the_camera_axes():
+    cam = Camera(width=64, height=48, fx=50.0, fy=50.0, cx=31.5, cy=23.5,
+                 pose=torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], dtype=torch.float64))
+    moved = camera_for(Extension("camera_offset", {"rx": 0.0, "ry": 2.0, "rz": 0.0}), cam)
+    # a point straight ahead moves by fx·tan(2°) px sideways when the camera yaws 2° about its y axis
+    uv, _ = moved.project(torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64))
+    assert float(uv[0, 0] - 31.5) == pytest.approx(-50.0 * math.tan(math.radians(2.0)), abs=1e-6)
+    assert torch.allclose(rotation_deg(0, 0, 0), torch.eye(3, dtype=torch.float64))
+    assert main_value(Extension("camera_offset", {"rx": 3.0, "ry": 4.0, "rz": 0.0})) == pytest.approx(5.0)
+    assert camera_for(Extension("drag", {"c": 1.0}), cam) is cam
+
+
+def _blob(h=64, w=64, r0=20, c0=20, size=12):
+    m = np.zeros((h, w), bool)
+    m[r0:r0 + size, c0:c0 + size] = True
+    return m
+
+
+def test_residual_metrics_against_hand_values():
+    a = _blob()[None]
+    b = _blob(c0=20 + 3 * CELL)[None]                   # the same blob 3 cells to the right
+    m = cell_metrics(coarse(a), coarse(b))
+    assert m["w1"][0] == pytest.approx(3.0)           # row profiles equal, column profiles 3 cells apart
+    assert m["mass"][0] == 0.0
+    empty = np.zeros_like(a)
+    assert cell_metrics(coarse(empty), coarse(b))["w1"][0] == 2 * EMPTY_W1     # rows and columns
+    assert cell_metrics(coarse(empty), coarse(empty))["loss"][0] == 0.0
+    small = _blob(size=6)[None]          # rows/cols 20–25: 2×2 cells (the second holds 8 px ≥ 2)
+    assert coarse(a).sum() == 9 and coarse(small).sum() == 4
+    mm = cell_metrics(coarse(small), coarse(a))
+    assert mm["mass"][0] == pytest.approx(abs(4 - 9) / (4 + 9 + 4.0))
+    speck = np.zeros_like(a)
+    speck[0, 5, 5] = True                                 # one pixel: no cell
+    assert coarse(speck).sum() == 0
+    assert pixel_iou(a, b)[0] == 0.0
+    assert pixel_iou(a, a)[0] == 1.0 and pixel_iou(empty, empty)[0] == 1.0
+    assert pixel_iou(a, _blob(c0=26)[None])[0] == pytest.approx(72 / 216)
+
+
+def test_interval_covers_the_mean_and_shrinks_with_data():
+    rng = np.random.default_rng(1)
+    v = rng.normal(1.0, 0.5, 400)
+    blocks = np.repeat(np.arange(40), 10)
+    lo, hi = interval(v, blocks, np.random.default_rng(0), 2000)
+    assert lo < v.mean() < hi and hi - lo < 0.4
+    lo2, hi2 = interval(v[:40], blocks[:40], np.random.default_rng(0), 2000)
+    assert hi2 - lo2 > hi - lo
+
+
+def test_line_search_finds_a_minimum_between_grid_points():
+    x, fx, trace = _line(lambda v: (math.log(v) - math.log(2.0)) ** 2, (0.5, 1.5, 4.0, 9.0), True)
+    assert abs(x - 2.0) < 0.5 and fx < (math.log(1.5) - math.log(2.0)) ** 2 and len(trace) <= 8
+
+
+def test_options_are_checked():
+    with pytest.raises(ValueError, match="unknown candidate"):
+        Options(candidates=("gremlins",))
+    with pytest.raises(ValueError, match="block_s"):
+        Options(block_s=0)
