@@ -124,3 +124,40 @@ def test_options_are_checked():
         Options(candidates=("gremlins",))
     with pytest.raises(ValueError, match="block_s"):
         Options(block_s=0)
+
+
+def _corrections(a_of_v, n=2000, seed=0):
+    from liquidtwin.discrepancy.corrections import Corrections
+    rng = np.random.default_rng(seed)
+    v = rng.normal(0, 0.8, (n, 3))
+    wall = rng.uniform(0, 0.05, n)
+    return Corrections(np.zeros(n), v, a_of_v(v, wall), wall, 0.006)
+
+
+def test_tracker_correction_evidence_reads_drag_wind_and_walls():
+    from liquidtwin.discrepancy.corrections import correction_evidence
+    drag = correction_evidence(_corrections(lambda v, w: -2.5 * np.linalg.norm(v, axis=1, keepdims=True) * v))
+    assert drag["drag_coefficient_per_m"] == pytest.approx(2.5)
+    wind = correction_evidence(_corrections(lambda v, w: np.tile([0.8, 0.0, -0.3], (len(v), 1))))
+    assert wind["uniform_horizontal_m_s2"] == pytest.approx([0.8, -0.3])
+    near = correction_evidence(_corrections(lambda v, w: -20.0 * (w < 0.006)[:, None] * v))
+    assert near["near_wall_slowing_m_s2"] > 5.0 and abs(wind["near_wall_slowing_m_s2"]) < 0.1
+
+
+def test_learned_correction_is_a_shrunk_least_squares_fit_and_steps_like_a_term():
+    from liquidtwin.discrepancy.corrections import fit_learned
+    from liquidtwin.discrepancy.model import learned_matrix, learned_params
+    from liquidtwin.sim import LinearAcceleration, make_state
+    W_true = np.array([[-1.0, 0, 0, 0.5], [0, -1.0, 0, 0], [0, 0, -1.0, -0.2]])
+    W = fit_learned(_corrections(lambda v, w: v @ W_true[:, :3].T + W_true[:, 3]))
+    assert np.all(np.sign(W[np.abs(W_true) > 0]) == np.sign(W_true[np.abs(W_true) > 0]))
+    assert np.abs(W).sum() < np.abs(W_true).sum()               # minimum norm: shrunk, never inflated
+    assert np.abs(W - W_true).max() < 0.15                      # ridge 0.02: about 8 % shrinkage here
+    assert fit_learned(_corrections(lambda v, w: np.zeros_like(v))) == pytest.approx(np.zeros((3, 4)), abs=1e-12)
+    back = learned_matrix(learned_params(W))
+    assert torch.allclose(back, torch.tensor(W, dtype=torch.float32))
+    s = make_state(torch.zeros(2, 3), torch.tensor([[1.0, 0, 0], [0, 2.0, 0]]))
+    a = LinearAcceleration(torch.tensor(W_true, dtype=torch.float32)).acceleration(None, s)
+    assert torch.allclose(a, torch.tensor([[-0.5, 0.0, -0.2], [0.5, -2.0, -0.2]]))
+    with pytest.raises(ValueError, match="w23"):
+        learned_matrix({f"w{i}{j}": 0.0 for i in range(3) for j in range(4) if (i, j) != (2, 3)})

@@ -8,11 +8,13 @@
    liquid is missing or extra, mass over time) and their structure (``evidence``).
 4. Name the cause: fit every candidate of the library on the fitting frames and rank them by
    their gain on the held-out frames (95 % interval by resampling held-out blocks).
-5. Guard against false discovery: the best few are fitted again on data generated from the
-   fitted base model alone (``null_runs`` realisations, with mask noise); a candidate is
-   declared only when its held-out gain exceeds what it finds there. Otherwise ``none``, or
-   ``unexplained`` when the base model misses the data by more than it misses its own
-   realisations.
+5. Guard against false discovery with data generated from the fitted base model alone
+   (``null_runs`` realisations: other initial jitter, mask noise). If the base model misses
+   the recording by no more than ``RESIDUAL_FACTOR`` × what it misses its own realisations by,
+   there is nothing to explain: ``none``. Else the best few candidates are fitted again on
+   the null data, and one is declared only when its held-out gain interval is above zero and
+   its gain exceeds ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN``; when none is, the
+   residual is ``unexplained`` and a minimum-norm learned correction is fitted instead.
 
 Only the recordings are read; nothing here knows of truth sidecars.
 """
@@ -39,8 +41,9 @@ from .rollout import Simulator
 NULL_FACTOR = 1.5
 #: … and by at least this much loss (coarse-loss units).
 NULL_MARGIN = 0.02
-#: "unexplained": base held-out loss above this × the worst null realisation's base loss.
-UNEXPLAINED_FACTOR = 1.5
+#: The residual is real when the base model's held-out loss exceeds this × the largest loss
+#: it scores on its own realisations (model chaos + mask noise); otherwise: "none".
+RESIDUAL_FACTOR = 1.2
 #: Calibration tries the base's λ_v, then λ_c, at these multiples of the stated values.
 CALIBRATION_FACTORS = (0.75, 0.9, 1.1, 1.25)
 #: Mask noise of the null realisations (mid-range of what the generator's sensors draw).
@@ -250,7 +253,7 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
     t = time.perf_counter()
     base_loss = ev.losses(base, data.cells)
     base_iou = ev.iou(base)
-    evid = evidence(eps, sims, ev.cells(base), data.cells, base_loss)
+    evid = evidence(eps, sims, frames, ev.cells(base), data.cells)
     timing["residuals"] = time.perf_counter() - t
     t = time.perf_counter()
     corrections = [tracker_corrections(e, base) for e in eps]
@@ -297,6 +300,7 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
     timing["null"] = time.perf_counter() - t
     bar.close()
 
+    residual_real = bool(null_base) and float(held_base.mean()) > RESIDUAL_FACTOR * max(null_base)
     decision, chosen = "none", base
     for c in ranked[: opt.top]:
         if "null_gains" not in c:
@@ -305,9 +309,8 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
         thr = max(NULL_FACTOR * max(c["null_gains"]), 0.0) + NULL_MARGIN
         c["null_threshold"] = thr
         c["declared"] = bool(c["heldout_gain"]["ci95"][0] > 0 and c["heldout_gain"]["mean"] > thr)
-        if c["declared"] and decision == "none":
+        if c["declared"] and decision == "none" and residual_real:
             decision, chosen = c["name"], c["_ext"]
-    residual_real = bool(null_base) and float(held_base.mean()) > UNEXPLAINED_FACTOR * max(null_base)
     learned = None
     if decision == "none" and residual_real:
         decision = "unexplained"
@@ -336,7 +339,7 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
         "tracker_corrections": tracker,
         "calibration": calib,
         "null": {"runs": opt.null_runs, "base_heldout_loss": null_base, "factor": NULL_FACTOR, "margin": NULL_MARGIN,
-                 "unexplained_factor": UNEXPLAINED_FACTOR, "residual_real": residual_real},
+                 "residual_factor": RESIDUAL_FACTOR, "residual_real": residual_real},
         "model": chosen.as_dict(),
         "recordings": [str(e.path) for e in eps],
         "camera": eps[0].camera.name,

@@ -20,7 +20,7 @@ import numpy as np
 from .model import CANDIDATES, OBSERVATION, Extension
 
 #: Refinement rounds after the coarse grid (each halves the bracket: 2 evaluations).
-REFINE = 2
+REFINE = 1
 
 
 @dataclass(frozen=True)
@@ -105,7 +105,7 @@ def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict
         _line(lambda r: run(radius=r, height_fraction=site[0], azimuth_deg=site[1]), (0.003, 0.008), False)
     elif name == "camera_offset":
         r = [0.0, 0.0, 0.0]
-        for _ in range(2):                     # coordinate descent over the three axes
+        for _ in range(1):                     # one round of coordinate descent over the three axes
             for axis in range(3):
                 def f(v, axis=axis):
                     rr = list(r)

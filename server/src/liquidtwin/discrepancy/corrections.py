@@ -21,7 +21,7 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 from ..sim import min_sdf
 
 #: Ridge penalty, relative to the mean feature energy.
-RIDGE = 0.1
+RIDGE = 0.02
 
 
 @dataclass(frozen=True)

@@ -41,11 +41,12 @@ def _mean(a) -> float | None:
     return float(a.mean()) if a.size else None
 
 
-def evidence(eps, sims, model_cells: list, obs_cells: list, base_loss: list) -> dict:
-    """{candidate: {statistic: value}} from the base model's residuals (module doc)."""
+def evidence(eps, sims, frames: list, model_cells: list, obs_cells: list) -> dict:
+    """{candidate: {statistic: value}} from the base model's residuals (module doc); cells are
+    (F, h, w) bool at each episode's mask ``frames`` (index arrays)."""
     shift, rest, corr_x, corr_y, early, late, extra = [], [], [], [], [], [], []
-    for ep, sim, cm, co in zip(eps, sims, model_cells, obs_cells):
-        tilt, speed = _tilt_and_speed(ep, sim._source_index)
+    for ep, sim, f, cm, co in zip(eps, sims, frames, model_cells, obs_cells):
+        tilt, speed = (a[f] for a in _tilt_and_speed(ep, sim.source_index))
         nm, no = cm.sum((1, 2)), co.sum((1, 2))
         both = (nm >= MIN_CELLS) & (no >= MIN_CELLS)
         d = centroids(co) - centroids(cm)

@@ -39,16 +39,27 @@ def markdown(report: dict) -> str:
         params = ", ".join(f"{k}={v:.4g}" for k, v in c["params"].items())
         lines.append(f"| {i} | {c['name']} | {params} | {g['mean']:.3f} | {_fmt(g['ci95'])} | {c['heldout_iou_gain']:+.3f} | "
                      f"{_fmt(c.get('null_gains'))} | {_fmt(c.get('null_threshold'))} | {'yes' if c.get('declared') else ''} |")
+    if report.get("learned"):
+        g = report["learned"]["heldout_gain"]
+        lines += ["", f"No candidate explains the residual: a minimum-norm learned correction a = W [v, 1] "
+                      f"(ridge on the tracker's corrections) gains {g['mean']:.3f} {_fmt(g['ci95'])} held out."]
     lines += ["", "## Evidence in the base model's residuals", ""]
     for c in report["candidates"]:
-        if c["evidence"]:
-            lines.append(f"- {c['name']}: " + ", ".join(f"{k} = {_fmt(v)}" for k, v in c["evidence"].items()))
+        ev = {k: v for k, v in c["evidence"].items() if k != "tracker"}
+        if ev:
+            lines.append(f"- {c['name']}: " + ", ".join(f"{k} = {_fmt(v)}" for k, v in ev.items()))
+    tr = report.get("tracker_corrections") or {}
+    if tr:
+        lines.append("- the warp-field tracker's corrections (as accelerations): "
+                     + ", ".join(f"{k} = {_fmt(v)}" for k, v in tr.items()))
     s = report["split"]
     lines += ["", "## Split", "", f"By {s['by']}: {s['fit_frames']} fitting frames, {s['held_out_frames']} held-out frames "
               "(frames where neither the recording nor the model shows liquid are left out).", "",
               f"Null: {report['null']['runs']} realisations of the fitted base model; their base held-out loss "
-              f"{_fmt(report['null']['base_heldout_loss'])}. A candidate is declared when its gain's interval is above 0 and "
-              f"its gain exceeds {report['null']['factor']} × its best null gain + {report['null']['margin']}.", "",
+              f"{_fmt(report['null']['base_heldout_loss'])} (the recording's: {b['heldout_loss']:.3f}; a residual is real above "
+              f"{report['null']['residual_factor']} × the largest: {'yes' if report['null']['residual_real'] else 'no'}). "
+              f"A candidate is declared when the residual is real, its gain's interval is above 0 and its gain exceeds "
+              f"{report['null']['factor']} × its best null gain + {report['null']['margin']}.", "",
               "Time per stage (s): " + ", ".join(f"{k} {v}" for k, v in report["timing_s"].items()), ""]
     return "\n".join(lines)
 

@@ -53,11 +53,11 @@ class Simulator:
         names = list(self.scene.names)
         fills = {f.container: f for f in ep.spec.scene.fills}
         self.source = next(iter(fills))
-        self._source_index = names.index(self.source)
-        obj = self.scene.objects[self._source_index]
+        self.source_index = names.index(self.source)
+        obj = self.scene.objects[self.source_index]
         stated = self.scene.fills[self.source].settled_ml
         try:
-            self.sites = source_sites(self._source_index, obj, stated)
+            self.sites = source_sites(self.source_index, obj, stated)
         except (AttributeError, ValueError):
             self.sites = None            # not a round container: no leak / blockage site
         self._fills: dict[float, tuple] = {1.0: self.scene.state.by_id()}
@@ -66,7 +66,7 @@ class Simulator:
         """(x, v) of the fill with the source's stated volume × ``scale`` (cached)."""
         key = round(float(scale), 4)
         if key not in self._fills:
-            k = self._source_index
+            k = self.source_index
             rep = self.scene.fills[self.source]
             poses = torch.as_tensor(self.scene.initial_poses)
             s, _ = fill_container(self.model, poses, k, self.scene.objects[k],

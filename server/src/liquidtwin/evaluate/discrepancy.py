@@ -1,0 +1,217 @@
+"""``liquidtwin evaluate discrepancy``: blind hidden-effect benchmark of discrepancy discovery.
+
+For every canonical effect (and for nothing hidden) ``--trials`` recordings are generated,
+each with its own seed: a pour (hold or partial, cup or mug, 90 % full, target drawn by the
+seed), the world's fluid parameters jittered, noisy masks and poses, and the effect's
+magnitude drawn by the generator from its realistic range. ``discrepancy.analyse`` reads each
+recording only; the scoring here then opens the truth sidecar to compare. Printed: the
+confusion matrix (planted × named), per class the share named right, the fitted parameter's
+relative error when right, and how often the held-out gain's 95 % interval is above zero.
+Written: ``results.json`` and ``discrepancy.json`` (with the ``headline``: share named right),
+``confusion.png``, and each recording's report under ``reports/``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .benchmark import generate_all
+from .cli import add_common, save_results
+
+HELP = "blind hidden-effect benchmark of discrepancy discovery: confusion matrix and parameter errors"
+PARAM_TOLERANCE = 0.25
+
+
+def _classes() -> tuple:
+    from ..discrepancy import CANDIDATES
+    return ("none",) + CANDIDATES
+
+
+@dataclass(frozen=True)
+class DiscCase:
+    """One recording: ``planted`` effect (or "none"), its trial, seed and scene."""
+
+    planted: str
+    trial: int
+    seed: int
+    quick: bool
+    kind: str
+    source: str
+
+    @property
+    def name(self) -> str:
+        return f"disc-{self.planted}-{self.kind}-{self.source}-t{self.trial}-s{self.seed}-{'q' if self.quick else 'f'}"
+
+    def as_dict(self) -> dict:
+        return asdict(self) | {"name": self.name}
+
+
+def disc_cases(*, quick: bool, trials: int, base_seed: int = 0, classes=None) -> list[DiscCase]:
+    """Seeds ``base_seed + 100·class + trial``; hold/partial and cup/mug alternate with the seed."""
+    out = []
+    for i, planted in enumerate(classes or _classes()):
+        for t in range(trials):
+            seed = base_seed + 100 * i + t
+            out.append(DiscCase(planted, t, seed, quick, ("hold", "partial")[seed % 2], ("cup", "mug")[(seed // 2) % 2]))
+    return out
+
+
+def _generate(args) -> str:
+    case_d, data = args
+    import torch
+    torch.set_num_threads(1)
+    from ..generate import generate
+    case = DiscCase(**{k: v for k, v in case_d.items() if k != "name"})
+    out = Path(data) / f"{case.name}.mcap"
+    effects = [] if case.planted == "none" else [(case.planted, None)]
+    generate(f"pour_{case.kind}", out, effects=effects, seed=case.seed, quick=case.quick,
+             choices={"source": case.source, "fraction": 0.9})
+    out.with_suffix(".case.json").write_text(json.dumps(case.as_dict(), indent=2) + "\n")
+    return str(out)
+
+
+def _analyse(job) -> dict:
+    path, out, opts = job
+    import torch
+    torch.set_num_threads(1)
+    from ..discrepancy import Options, analyse
+    rep = analyse([path], out, options=Options(**opts))
+    keep = ("decision", "baseline", "extended", "timing_s", "evaluations")
+    return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "heldout_gain",
+                                                                              "null_gains", "declared")}
+                                                         for c in rep["candidates"]]}
+
+
+def _map(fn, work, jobs):
+    if jobs <= 1 or len(work) <= 1:
+        yield from map(fn, work)
+        return
+    import multiprocessing as mp
+    with mp.get_context("spawn").Pool(min(jobs, len(work))) as pool:
+        yield from pool.imap(fn, work)
+
+
+def configure(p) -> None:
+    add_common(p, out="eval-discrepancy")
+    p.set_defaults(trials=1)
+    p.add_argument("--classes", nargs="+", default=None, metavar="NAME",
+                   help="planted classes to run (default: none and every candidate)")
+    p.add_argument("--null-runs", type=int, default=2, metavar="N", help="null realisations per analysis (default 2)")
+
+
+def score(case: DiscCase, truth: dict, result: dict) -> dict:
+    """Compare one analysis with its truth sidecar (the only place the truth is read)."""
+    eff = truth.get("effect")
+    planted = eff["name"] if eff else "none"
+    named = result["decision"]
+    row = {"planted": planted, "named": named, "correct": named == planted, "truth_value": eff["value"] if eff else None}
+    if eff and named == planted:
+        cand = next(c for c in result["candidates"] if c["name"] == named)
+        row["fitted_value"] = cand["value"]
+        row["rel_error"] = abs(cand["value"] - eff["value"]) / abs(eff["value"])
+        row["gain_ci95"] = cand["heldout_gain"]["ci95"]
+    return row
+
+
+def table(rows: list) -> dict:
+    classes = list(_classes())
+    named = classes + ["unexplained"]
+    conf = {p: {n: 0 for n in named} for p in classes}
+    per = {}
+    for r in rows:
+        conf[r["planted"]][r["named"]] += 1
+    for p in classes:
+        rs = [r for r in rows if r["planted"] == p]
+        if not rs:
+            continue
+        errs = [r["rel_error"] for r in rs if "rel_error" in r]
+        per[p] = {"runs": len(rs), "correct": sum(r["correct"] for r in rs),
+                  "median_rel_error": float(np.median(errs)) if errs else None,
+                  "within_25pct": sum(e <= PARAM_TOLERANCE for e in errs),
+                  "gain_ci_above_0": sum(1 for r in rs if r.get("gain_ci95") and r["gain_ci95"][0] > 0)}
+    total = sum(v["runs"] for v in per.values())
+    right = sum(v["correct"] for v in per.values())
+    return {"confusion": conf, "per_class": per, "correct": right, "runs": total}
+
+
+def format_table(tab: dict, note: str) -> str:
+    classes = [p for p in tab["confusion"] if p in tab["per_class"]]
+    named = list(next(iter(tab["confusion"].values())))
+    short = {n: n[:6] for n in named}
+    lines = ["planted \\ named".ljust(16) + " ".join(f"{short[n]:>6}" for n in named)]
+    for p in classes:
+        lines.append(f"{p:<16}" + " ".join(f"{tab['confusion'][p][n] or '.':>6}" for n in named))
+    lines += ["", f"{'class':<16}{'right':>8}{'param err (median)':>20}{'within 25 %':>13}{'gain CI > 0':>13}"]
+    for p in classes:
+        v = tab["per_class"][p]
+        err = "—" if v["median_rel_error"] is None else f"{100 * v['median_rel_error']:.0f} %"
+        lines.append(f"{p:<16}{v['correct']:>4}/{v['runs']:<3}{err:>20}{v['within_25pct']:>13}{v['gain_ci_above_0']:>13}")
+    lines += ["", f"named right: {tab['correct']}/{tab['runs']}", note]
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from tqdm import tqdm
+    classes = tuple(args.classes) if args.classes else _classes()
+    bad = [c for c in classes if c not in _classes()]
+    if bad:
+        raise SystemExit(f"unknown class(es) {bad}; known: {', '.join(_classes())}")
+    if args.trials < 1:
+        raise SystemExit("--trials must be at least 1")
+    case_list = disc_cases(quick=args.quick, trials=args.trials, base_seed=args.seed, classes=classes)
+    data = Path(args.data)
+    data.mkdir(parents=True, exist_ok=True)
+    missing = [c for c in case_list if not (data / f"{c.name}.case.json").exists()]
+    generate_all(_generate, [(c.as_dict(), str(data)) for c in missing], jobs=args.jobs,
+                 desc="generate", progress=not args.no_progress)
+    out = Path(args.out)
+    opts = {"null_runs": args.null_runs}
+    work = [(str(data / f"{c.name}.mcap"), str(out / "reports" / c.name), opts) for c in case_list]
+    rows = []
+    bar = tqdm(total=len(work), desc="discrepancy", unit="rec", disable=args.no_progress)
+    for case, res in zip(case_list, _map(_analyse, work, args.jobs)):
+        truth = json.loads((data / f"{case.name}.truth.json").read_text())
+        rows.append(score(case, truth, res) | {"case": case.as_dict(), "timing_s": res["timing_s"],
+                                               "baseline": res["baseline"], "extended": res["extended"],
+                                               "candidates": res["candidates"]})
+        bar.update()
+    bar.close()
+    tab = table(rows)
+    t = [r["timing_s"]["total"] for r in rows]
+    note = (f"{'quick' if args.quick else 'full'} scenes, {args.trials} trial(s) per class, base seed {args.seed}, "
+            f"null runs {args.null_runs}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
+    text = format_table(tab, note)
+    print(text)
+    doc = {"kind": "discrepancy", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
+           "headline": {"name": "hidden effects named right", "value": tab["correct"] / max(tab["runs"], 1),
+                        "unit": "share"},
+           "table": tab, "table_text": text, "rows": rows}
+    save_results(out, doc)
+    _plot(out, tab)
+    return 0
+
+
+def _plot(out: Path, tab: dict) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    planted = [p for p in tab["confusion"] if p in tab["per_class"]]
+    named = list(next(iter(tab["confusion"].values())))
+    m = np.array([[tab["confusion"][p][n] for n in named] for p in planted], float)
+    fig, ax = plt.subplots(figsize=(0.55 * len(named) + 2.5, 0.45 * len(planted) + 1.8))
+    ax.imshow(m, cmap="Blues")
+    for i in range(len(planted)):
+        for j in range(len(named)):
+            if m[i, j]:
+                ax.text(j, i, int(m[i, j]), ha="center", va="center", fontsize=8)
+    ax.set_xticks(range(len(named)), named, rotation=60, ha="right", fontsize=8)
+    ax.set_yticks(range(len(planted)), planted, fontsize=8)
+    ax.set_xlabel("named")
+    ax.set_ylabel("planted")
+    fig.tight_layout()
+    fig.savefig(out / "confusion.png", dpi=110)
+    plt.close(fig)
