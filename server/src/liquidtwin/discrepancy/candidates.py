@@ -19,8 +19,10 @@ import numpy as np
 
 from .model import CANDIDATES, OBSERVATION, Extension
 
-#: Refinement rounds after the coarse grid (each halves the bracket: 2 evaluations).
-REFINE = 1
+#: Refinement rounds after the coarse grid (each halves the bracket: 2 evaluations): every
+#: candidate gets ``COARSE``, the best few are refined to ``FINE``.
+COARSE = 1
+FINE = 3
 
 
 @dataclass(frozen=True)
@@ -60,10 +62,11 @@ def _ext(name: str, base: dict, **params) -> Extension:
     return Extension(name, {k: float(v) for k, v in params.items()}, dict(base))
 
 
-def _line(f: Callable[[float], float], grid, log: bool, lo=None, hi=None) -> tuple[float, float, list]:
-    """Minimise f over ``grid`` then refine around the best point. Returns (x, f(x), trace)."""
+def _line(f: Callable[[float], float], grid, log: bool, rounds: int = COARSE) -> tuple[float, float, list]:
+    """Minimise f over ``grid`` then refine ``rounds`` times around the best point (bisecting
+    towards both neighbours). Returns (x, f(x), trace)."""
     trace = [(float(g), f(float(g))) for g in grid]
-    for _ in range(REFINE):
+    for _ in range(rounds):
         xs = sorted(trace)
         k = min(range(len(xs)), key=lambda i: xs[i][1])
         for j in (k - 1, k + 1):
@@ -76,8 +79,11 @@ def _line(f: Callable[[float], float], grid, log: bool, lo=None, hi=None) -> tup
     return x, fx, trace
 
 
-def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict) -> tuple[Extension, float, list]:
-    """Fit candidate ``name``; returns (best extension, its fitting loss, [(params, loss), …])."""
+def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict,
+                  rounds: int = COARSE) -> tuple[Extension, float, list]:
+    """Fit candidate ``name`` with ``rounds`` refinements after the coarse grid; returns (best
+    extension, its fitting loss, [(params, loss), …]). The analysis caches evaluations, so a
+    finer fit after a coarse one only pays for its new points."""
     c = LIBRARY[name]
     trace = []
 
@@ -98,24 +104,24 @@ def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict
         tm = math.atan2(math.sin(t) + math.sin(nb), math.cos(t) + math.cos(nb))
         if run(ax=a0 * math.cos(tm), az=a0 * math.sin(tm)) < min(scores):
             t = tm
-        _line(lambda a: run(ax=a * math.cos(t), az=a * math.sin(t)), (0.5, a0, 2.4), True)
+        _line(lambda a: run(ax=a * math.cos(t), az=a * math.sin(t)), (0.5, a0, 2.4), True, rounds)
     elif name == "leak":
         r0 = c.grid[1]
         site = min(LEAK_SITES, key=lambda s: run(radius=r0, height_fraction=s[0], azimuth_deg=s[1]))
-        _line(lambda r: run(radius=r, height_fraction=site[0], azimuth_deg=site[1]), (0.003, 0.008), False)
+        _line(lambda r: run(radius=r, height_fraction=site[0], azimuth_deg=site[1]), (0.003, 0.008), False, rounds)
     elif name == "camera_offset":
         r = [0.0, 0.0, 0.0]
-        for _ in range(1):                     # one round of coordinate descent over the three axes
+        for k in range(1 + (rounds > COARSE)):         # coordinate descent over the three axes
             for axis in range(3):
                 def f(v, axis=axis):
                     rr = list(r)
                     rr[axis] = v
                     return run(rx=rr[0], ry=rr[1], rz=rr[2])
-                grid = c.grid if r[axis] == 0.0 else (r[axis] - 0.6, r[axis] + 0.6)
-                v, fv, tr = _line(f, tuple(grid) + (r[axis],), False)
+                grid = c.grid if k == 0 else (r[axis] - 0.6, r[axis] + 0.6)
+                v, fv, tr = _line(f, tuple(grid) + (r[axis],), False, rounds)
                 r[axis] = v
     else:
-        _line(lambda v: run(**{c.key: v}), c.grid, c.log)
+        _line(lambda v: run(**{c.key: v}), c.grid, c.log, rounds)
     params, loss = min(trace, key=lambda t: t[1])
     return _ext(name, base, **params), loss, trace
 

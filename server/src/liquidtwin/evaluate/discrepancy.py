@@ -51,12 +51,15 @@ class DiscCase:
 
 
 def disc_cases(*, quick: bool, trials: int, base_seed: int = 0, classes=None) -> list[DiscCase]:
-    """Seeds ``base_seed + 100·class + trial``; hold/partial and cup/mug alternate with the seed."""
+    """Seeds ``base_seed + 100·class + trial``; hold/partial and cup/mug alternate over the
+    classes and trials (k = class + trial: hold, partial, hold, partial … with cup, cup, mug,
+    mug …)."""
     out = []
     for i, planted in enumerate(classes or _classes()):
         for t in range(trials):
             seed = base_seed + 100 * i + t
-            out.append(DiscCase(planted, t, seed, quick, ("hold", "partial")[seed % 2], ("cup", "mug")[(seed // 2) % 2]))
+            k = i + t
+            out.append(DiscCase(planted, t, seed, quick, ("hold", "partial")[k % 2], ("cup", "mug")[(k // 2) % 2]))
     return out
 
 
