@@ -56,6 +56,11 @@ def test_cli_writes_the_table_json_and_figures(evaluated, capsys):
     lines = doc["table_text"].splitlines()
     assert [ln.split()[0] for ln in lines[1:7]] == ["cup", "bottle", "30", "60", "90", "overall"]
     assert ">= 50 px" in lines[-1]
+    # ARCHITECTURE.md: DIR/NAME.json with the headline figure
+    named = json.loads((out / "tracking.json").read_text())
+    best = max(("map_filter", "warp_field"), key=lambda c: doc["table"]["overall"][c])
+    assert named["headline"] == {"name": f"best closed-loop overall IOU ({best})",
+                                 "value": doc["table"]["overall"][best], "unit": "IOU"}
 
 
 def test_a_tracker_a_session_cannot_run_is_reported_not_available(evaluated, monkeypatch):

@@ -92,5 +92,8 @@ def test_cli_runs_one_quick_case(data, tmp_path, capsys):
     assert case["case"]["seed"] == 0 and case["case"]["source"] == "cup"
     assert len(case["t_s"]) == len(case["truth"]["target"]) == len(case["mask"]["target"]) > 5
     assert set(doc["table"]) == {"particles open_loop", "mask"}
+    head = json.loads((out / "volume.json").read_text())["headline"]
+    measured = [v["target pour"] for v in doc["table"].values() if v["target pour"] is not None]
+    assert head["unit"] == "ml" and head["value"] == (min(measured) if measured else None)
     for png in ("rmse.png", "volume_time.png"):
         assert (out / png).stat().st_size > 5000

@@ -125,6 +125,10 @@ def run(args) -> int:
     print(text)
     doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "delta": delta,
            "frames": args.frames, "trackers": list(args.trackers), "table_text": text, "cases": results}
+    right = {m: sum(r["modes"][m]["correct"] for r in results) for m in args.trackers}
+    best = max(right, key=right.get)
+    doc["headline"] = {"name": f"pipe scenes with the true blockage ranked first ({best})", "value": right[best],
+                       "unit": f"of {len(results)}"}
     out = _save(args, doc)
     _plot(out, results, args.trackers)
     return 0

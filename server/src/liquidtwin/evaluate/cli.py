@@ -11,7 +11,8 @@ import argparse
 import importlib
 
 #: evaluate kind → module (relative to this package).
-KINDS = {"tracking": ".tracking", "fill": ".fill", "blockage": ".blockage", "volume": ".volume"}
+KINDS = {"tracking": ".tracking", "fill": ".fill", "blockage": ".blockage", "volume": ".volume",
+         "discrepancy": ".discrepancy"}
 
 HELP = "thesis-style evaluations on generated benchmarks: " + ", ".join(KINDS)
 
@@ -68,10 +69,15 @@ def selected_cases(args, **kw) -> list:
 
 
 def save_results(out, doc: dict):
-    """Write ``doc`` as ``out/results.json`` (folder created); returns the folder as a Path."""
+    """Write ``doc`` as ``out/results.json`` (folder created) and, once it has its
+    ``headline`` ({"name", "value", "unit"}: the one figure the issue's target is about), as
+    ``out/KIND.json`` too (ARCHITECTURE.md); returns the folder as a Path."""
     import json
     from pathlib import Path
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n")
+    text = json.dumps(doc, indent=1, default=float) + "\n"
+    (out / "results.json").write_text(text)
+    if "headline" in doc:
+        (out / f"{doc['kind']}.json").write_text(text)
     return out

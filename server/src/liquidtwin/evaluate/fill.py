@@ -79,6 +79,9 @@ def run(args) -> int:
     doc = {"kind": "fill", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed, "delta": delta,
            "scale": scale, "frames": args.frames, "trackers": list(args.trackers), "hypotheses": names,
            "summary": summary, "table_text": text, "cases": results}
+    best = max(summary, key=lambda m: summary[m]["mean_p_truth"])
+    doc["headline"] = {"name": f"mean probability of the true fill ({best})", "value": summary[best]["mean_p_truth"],
+                       "unit": "probability"}
     out = _save(args, doc)
     _plots(out, results, args.trackers, names)
     return 0

@@ -173,6 +173,10 @@ def run(args) -> int:
     doc = {"kind": "tracking", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
            "frames": args.frames, "min_px": args.min_px, "trackers": trackers, "columns": columns,
            "table": tab, "table_text": text, "cases": results}
+    closed = [c for c in trackers if c != "open_loop" and tab["overall"].get(c) is not None]
+    best = max(closed, key=lambda c: tab["overall"][c]) if closed else None
+    doc["headline"] = {"name": f"best closed-loop overall IOU ({best or 'no closed-loop tracker run'})",
+                       "value": tab["overall"][best] if best else None, "unit": "IOU"}
     save_results(out, doc)
     _plots(out, tab, columns, results, args.min_px)
     return 0

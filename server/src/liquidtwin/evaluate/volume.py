@@ -189,6 +189,11 @@ def run(args) -> int:
     doc = {"kind": "volume", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
            "frames": args.frames, "trackers": trackers, "pour_tilt_rad": POUR_TILT_RAD, "columns": list(COLUMNS),
            "table": tab, "table_text": text, "cases": results}
+    col = next((c for c in COLUMNS if c.startswith("target") and c.endswith("pour")), None)
+    rows = {k: v[col] for k, v in tab.items() if col and v.get(col) is not None}
+    best = min(rows, key=rows.get) if rows else None       # None: no frame of a pour was evaluated
+    doc["headline"] = {"name": f"target-container RMSE during pours ({best or 'no pour frames'})",
+                       "value": rows.get(best), "unit": "ml"}
     save_results(out, doc)
     _plots(out, tab, results)
     return 0
