@@ -21,6 +21,7 @@ import numpy as np
 
 from .benchmark import generate_all
 from .cli import add_common, save_results
+from .tracking import map_jobs
 
 HELP = "blind hidden-effect benchmark of discrepancy discovery: confusion matrix and parameter errors"
 PARAM_TOLERANCE = 0.25
@@ -87,15 +88,6 @@ def _analyse(job) -> dict:
     return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "heldout_gain",
                                                                               "null_gains", "declared")}
                                                          for c in rep["candidates"]]}
-
-
-def _map(fn, work, jobs):
-    if jobs <= 1 or len(work) <= 1:
-        yield from map(fn, work)
-        return
-    import multiprocessing as mp
-    with mp.get_context("spawn").Pool(min(jobs, len(work))) as pool:
-        yield from pool.imap(fn, work)
 
 
 def configure(p) -> None:
@@ -176,7 +168,7 @@ def run(args) -> int:
     work = [(str(data / f"{c.name}.mcap"), str(out / "reports" / c.name), opts) for c in case_list]
     rows = []
     bar = tqdm(total=len(work), desc="discrepancy", unit="rec", disable=args.no_progress)
-    for case, res in zip(case_list, _map(_analyse, work, args.jobs)):
+    for case, res in zip(case_list, map_jobs(_analyse, work, args.jobs)):
         truth = json.loads((data / f"{case.name}.truth.json").read_text())
         rows.append(score(case, truth, res) | {"case": case.as_dict(), "timing_s": res["timing_s"],
                                                "baseline": res["baseline"], "extended": res["extended"],

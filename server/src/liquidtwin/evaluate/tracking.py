@@ -156,7 +156,7 @@ def run(args) -> int:
     results = []
     work = [(str(p), tuple(trackers), args.frames) for p in paths]
     bar = tqdm(total=len(work), desc="replay", unit="case", disable=args.no_progress)
-    for case, path, r in zip(case_list, paths, _map(_evaluate_one, work, args.jobs)):
+    for case, path, r in zip(case_list, paths, map_jobs(_evaluate_one, work, args.jobs)):
         bar.update()
         means = {k: _mean(v, args.min_px) for k, v in r["series"].items()}
         results.append({"case": case.as_dict(), "recording": str(path), "mean_iou": means, **r})
@@ -189,7 +189,7 @@ def _evaluate_one(job) -> dict:
     return evaluate_case(Path(path), trackers, frames=frames)
 
 
-def _map(fn, work: list, jobs: int):
+def map_jobs(fn, work: list, jobs: int):
     """fn over work in order, in ``jobs`` processes (1: here)."""
     if jobs <= 1 or len(work) <= 1:
         yield from map(fn, work)
