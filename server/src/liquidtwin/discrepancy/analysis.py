@@ -293,23 +293,24 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
 
     # 4. the null
     t = time.perf_counter()
-    null_base = []
-    if opt.null_runs:
+    null_base, null_cells = [], []
+    for run in range(opt.null_runs):
+        cells = _null_cells(sims, frames, base, run, opt.seed)
+        nb, _ = _held(ev.losses(base, cells), data)
+        null_base.append(float(nb.mean()))
+        null_cells.append((cells, nb))
+    residual_real = bool(null_base) and float(held_base.mean()) > RESIDUAL_FACTOR * max(null_base)
+    if residual_real:              # only then is it worth asking which cause beats its null
         for c in ranked[: opt.top]:
             c["null_gains"] = []
-        for run in range(opt.null_runs):
-            cells = _null_cells(sims, frames, base, run, opt.seed)
-            nd = _Data(cells, data.fit, data.held, data.blocks)
-            nb, _ = _held(ev.losses(base, cells), data)
-            null_base.append(float(nb.mean()))
-            for c in ranked[: opt.top]:
+            for cells, nb in null_cells:
+                nd = _Data(cells, data.fit, data.held, data.blocks)
                 ext, _, _ = fit_candidate(c["name"], lambda e: ev.fit_loss(e, nd), base.base, FINE)
                 ne, _ = _held(ev.losses(ext, cells), data)
                 c["null_gains"].append(float((nb - ne).mean()))
     timing["null"] = time.perf_counter() - t
     bar.close()
 
-    residual_real = bool(null_base) and float(held_base.mean()) > RESIDUAL_FACTOR * max(null_base)
     decision, chosen = "none", base
     for c in ranked[: opt.top]:
         if "null_gains" not in c:
