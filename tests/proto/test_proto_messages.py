@@ -51,7 +51,8 @@ def _status() -> pb.SessionStatus:
         sim_time_s=1.5, frames_done=45, particles=4096,
         volumes=[pb.ContainerVolume(name="cup", ml=120.0)], task=_task(),
         log_path="/var/liquidtwin/pour-01/log.mcap", checkpoint_path="/var/liquidtwin/pour-01/ckpt.pt",
-        restored=True, server_id="srv-1")
+        restored=True, server_id="srv-1",
+        model_json='{"version": 1, "name": "drag", "params": {"c": 2.0}, "base": {}}')
 
 
 def _overlay() -> pb.OverlayInfo:
@@ -113,6 +114,13 @@ SAMPLES = {
                                                                        log_likelihood=-3.0)],
         best="none", times_s=[0.1, 0.2], frames=2, wall_s=1.5,
         probability_over_time=pb.PackedArray(shape=[2, 1], dtype="float64", data=bytes(16))),
+    "DiscrepancyRequest": pb.DiscrepancyRequest(header=_header(11), session_id="s1", camera="cam0",
+                                                candidates=["drag", "time_offset"], null_runs=1, calibrate=True),
+    "DiscrepancyReply": pb.DiscrepancyReply(header=_header(12), session_id="s1", decision="drag",
+                                            report_json='{"decision": "drag"}',
+                                            model_json='{"version": 1, "name": "drag", "params": {"c": 2.0}}'),
+    "LoadModelRequest": pb.LoadModelRequest(header=_header(13), session_id="s1",
+                                            model_json='{"version": 1, "name": "none"}'),
 }
 
 

@@ -321,7 +321,7 @@ class Metrics(_message.Message):
     def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., input_seq: _Optional[int] = ..., sim_time_s: _Optional[float] = ..., iou: _Optional[float] = ..., step_ms: _Optional[float] = ..., correction_ms: _Optional[float] = ..., lag_ms: _Optional[float] = ..., sim_lag_s: _Optional[float] = ..., particles: _Optional[int] = ..., steps: _Optional[int] = ..., frames_in: _Optional[int] = ..., frames_done: _Optional[int] = ..., dropped_stale: _Optional[int] = ..., dropped_out_of_order: _Optional[int] = ..., rejected: _Optional[int] = ..., overlay: _Optional[_Union[OverlayInfo, _Mapping]] = ...) -> None: ...
 
 class SessionStatus(_message.Message):
-    __slots__ = ("header", "session_id", "state", "spec", "sim_time_s", "frames_done", "particles", "volumes", "task", "log_path", "checkpoint_path", "restored", "server_id")
+    __slots__ = ("header", "session_id", "state", "spec", "sim_time_s", "frames_done", "particles", "volumes", "task", "log_path", "checkpoint_path", "restored", "server_id", "model_json")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
     STATE_FIELD_NUMBER: _ClassVar[int]
@@ -335,6 +335,7 @@ class SessionStatus(_message.Message):
     CHECKPOINT_PATH_FIELD_NUMBER: _ClassVar[int]
     RESTORED_FIELD_NUMBER: _ClassVar[int]
     SERVER_ID_FIELD_NUMBER: _ClassVar[int]
+    MODEL_JSON_FIELD_NUMBER: _ClassVar[int]
     header: Header
     session_id: str
     state: str
@@ -348,7 +349,8 @@ class SessionStatus(_message.Message):
     checkpoint_path: str
     restored: bool
     server_id: str
-    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., state: _Optional[str] = ..., spec: _Optional[_Union[SessionSpec, _Mapping]] = ..., sim_time_s: _Optional[float] = ..., frames_done: _Optional[int] = ..., particles: _Optional[int] = ..., volumes: _Optional[_Iterable[_Union[ContainerVolume, _Mapping]]] = ..., task: _Optional[_Union[Task, _Mapping]] = ..., log_path: _Optional[str] = ..., checkpoint_path: _Optional[str] = ..., restored: _Optional[bool] = ..., server_id: _Optional[str] = ...) -> None: ...
+    model_json: str
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., state: _Optional[str] = ..., spec: _Optional[_Union[SessionSpec, _Mapping]] = ..., sim_time_s: _Optional[float] = ..., frames_done: _Optional[int] = ..., particles: _Optional[int] = ..., volumes: _Optional[_Iterable[_Union[ContainerVolume, _Mapping]]] = ..., task: _Optional[_Union[Task, _Mapping]] = ..., log_path: _Optional[str] = ..., checkpoint_path: _Optional[str] = ..., restored: _Optional[bool] = ..., server_id: _Optional[str] = ..., model_json: _Optional[str] = ...) -> None: ...
 
 class CreateSessionRequest(_message.Message):
     __slots__ = ("header", "session_id", "spec", "client_id")
@@ -467,3 +469,43 @@ class InferenceReply(_message.Message):
     frames: int
     wall_s: float
     def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., hypotheses: _Optional[_Iterable[_Union[Hypothesis, _Mapping]]] = ..., best: _Optional[str] = ..., times_s: _Optional[_Iterable[float]] = ..., probability_over_time: _Optional[_Union[PackedArray, _Mapping]] = ..., frames: _Optional[int] = ..., wall_s: _Optional[float] = ...) -> None: ...
+
+class DiscrepancyRequest(_message.Message):
+    __slots__ = ("header", "session_id", "camera", "candidates", "null_runs", "calibrate")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    CAMERA_FIELD_NUMBER: _ClassVar[int]
+    CANDIDATES_FIELD_NUMBER: _ClassVar[int]
+    NULL_RUNS_FIELD_NUMBER: _ClassVar[int]
+    CALIBRATE_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    session_id: str
+    camera: str
+    candidates: _containers.RepeatedScalarFieldContainer[str]
+    null_runs: int
+    calibrate: bool
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., camera: _Optional[str] = ..., candidates: _Optional[_Iterable[str]] = ..., null_runs: _Optional[int] = ..., calibrate: _Optional[bool] = ...) -> None: ...
+
+class DiscrepancyReply(_message.Message):
+    __slots__ = ("header", "session_id", "decision", "report_json", "model_json")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    DECISION_FIELD_NUMBER: _ClassVar[int]
+    REPORT_JSON_FIELD_NUMBER: _ClassVar[int]
+    MODEL_JSON_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    session_id: str
+    decision: str
+    report_json: str
+    model_json: str
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., decision: _Optional[str] = ..., report_json: _Optional[str] = ..., model_json: _Optional[str] = ...) -> None: ...
+
+class LoadModelRequest(_message.Message):
+    __slots__ = ("header", "session_id", "model_json")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    MODEL_JSON_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    session_id: str
+    model_json: str
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., session_id: _Optional[str] = ..., model_json: _Optional[str] = ...) -> None: ...
