@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 
 import numpy as np
 import torch
@@ -34,7 +35,14 @@ def engine_state(engine) -> dict:
         "task": task_to_str(engine._task) if engine._task is not None else "",
         "task_base": float(engine._task_base), "control_frame": int(engine._control_frame),
         "pid": engine._pid.state_dict() if engine._pid is not None else {},
+        # the loaded model extension (model file JSON; "" = none), its initial fill when it
+        # differs from the spec's (fill_error), and the steps kept for its time offset
+        "extension": json.dumps(engine._ext.as_dict()) if engine._ext.name != "none" or engine._ext.base else "",
+        "history": engine._history.state_dict(),
     }
+    if engine._initial is not engine._scene.state:
+        x0, v0 = engine._initial.by_id()
+        out["initial_x"], out["initial_v"] = x0.detach().cpu().clone(), v0.detach().cpu().clone()
     return out
 
 
@@ -44,7 +52,8 @@ def load_engine_state(engine, state: dict) -> None:
         raise EngineError(BAD_REQUEST, f"not a session engine checkpoint of version {VERSION}")
     if state["spec_sha256"] != spec_digest(engine.spec):
         raise EngineError(BAD_REQUEST, "the checkpoint was written by a session with another spec")
-    n = engine._scene.state.x.shape[0]
+    _load_extension(engine, state)
+    n = engine._initial.x.shape[0]
     x, ids = state["x"], state["ids"]
     if x.dim() != 2 or x.shape[1] != 3 or x.shape[0] > n or tuple(ids.shape) != (x.shape[0],) \
             or (x.shape[0] and (int(ids.min()) < 0 or int(ids.max()) >= n or ids.unique().numel() != ids.numel())):
@@ -64,3 +73,15 @@ def load_engine_state(engine, state: dict) -> None:
     engine._task_base = float(state["task_base"])
     engine._control_frame = int(state["control_frame"])
     engine._pid = PourPID.from_state_dict(state["pid"]) if state["pid"] else None
+    engine._history.load_state_dict(state.get("history", []), dev)
+
+
+def _load_extension(engine, state: dict) -> None:
+    """Load the checkpoint's model extension (none in checkpoints written before extensions)."""
+    from ..discrepancy.model import Extension, model_from_dict
+    try:
+        ext = model_from_dict(json.loads(state["extension"])) if state.get("extension") else Extension()
+    except ValueError as exc:
+        raise EngineError(BAD_REQUEST, f"the checkpoint's model extension is not valid: {exc}") from None
+    initial = (state["initial_x"], state["initial_v"]) if "initial_x" in state else None
+    engine.load_extension(engine.prepare_extension(ext, initial=initial))

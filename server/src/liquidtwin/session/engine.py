@@ -27,6 +27,7 @@ from ..tracking import MapFilter, Observation, OpenLoop, WarpField
 from ._build import build_scene
 from ._checkpoint import engine_state, load_engine_state
 from ._cull import cull_fallen
+from ._extension import MAX_TIME_OFFSET_S, History, Prepared, prepare
 from ._volumes import CavityVoxels, MaskVolumes, held_count_fast
 from ._cameras import Cameras, check_pose, tilt_from_upright
 from ._task import control_message, make_controller
@@ -124,9 +125,9 @@ class SessionEngine:
         self.container_names = scene.containers
         self.dt = float(scene.model.dt)
         self._radius_m = particle_radius(float(scene.model.spacing))
-        # The model the steps use: the scene's, plus any term the tracker runs inside the solver.
-        extra = tuple(tracker.terms())
-        self._step_model = dataclasses.replace(scene.model, terms=scene.model.terms + extra) if extra else scene.model
+        from ..discrepancy.model import Extension          # discrepancy builds on this package
+        self._history = History()
+        self._use(Prepared(Extension(), scene.model, scene.state))
         self._capacity = {n: scene.objects[scene.names.index(n)].capacity_ml for n in scene.containers}
         self._voxels = {n: CavityVoxels(scene.objects[scene.names.index(n)]) for n in scene.containers}
         # Model-based volumes from the masks alone (SPEC §5): filters per container, in the checkpoint.
@@ -136,8 +137,19 @@ class SessionEngine:
                                      {f.container: float(f.volume_ml) for f in spec.scene.fills})
         self._reset_state()
 
+    def _use(self, prep: Prepared) -> None:
+        """Run ``prep``'s model (plus any term the tracker runs inside the solver) from now on."""
+        self._ext, self._model, self._initial = prep.ext, prep.model, prep.initial
+        extra = tuple(self._tracker.terms())
+        self._step_model = dataclasses.replace(prep.model, terms=prep.model.terms + extra) if extra else prep.model
+        self._history.span_s = min(max(prep.ext.time_offset_s, 0.0), MAX_TIME_OFFSET_S)
+        self._history.clear()
+        self._volumes = None
+
     def _reset_state(self) -> None:
-        self._state = self._scene.state
+        self._state = self._initial
+        self._history.clear()
+        self._history.push(0.0, self._initial)
         self._sim_t = 0.0
         self._frame_t: float | None = None
         self._frame_poses = self._scene.initial_poses.copy()
@@ -161,7 +173,35 @@ class SessionEngine:
     @property
     def lost_particles(self) -> int:
         """Particles removed because they fell below every object (see ``_cull``)."""
-        return int(self._scene.state.x.shape[0] - self._state.x.shape[0])
+        return int(self._initial.x.shape[0] - self._state.x.shape[0])
+
+    @property
+    def extension(self):
+        """The loaded :class:`~liquidtwin.discrepancy.Extension` (name ``"none"``: the spec's model)."""
+        return self._ext
+
+    def prepare_extension(self, ext, *, initial: tuple | None = None) -> Prepared:
+        """Check ``ext`` against this scene and build its model and initial fill without changing
+        the session (slow for ``fill_error``: the source is refilled and settled). EngineError
+        (BAD_REQUEST: missing/unknown/out-of-range parameter, no leak site; INFEASIBLE: the
+        refill does not fit). ``initial``: a checkpoint's (x, v) fill instead of refilling."""
+        return prepare(ext, self._scene, self.spec, self.device, initial)
+
+    def load_extension(self, ext) -> None:
+        """Run model extension ``ext`` (a :class:`~liquidtwin.discrepancy.Extension` or what
+        :meth:`prepare_extension` made) from the next step on: its physics in every step, its
+        camera rotation (``camera_offset``) in every comparison with a mask, its time offset
+        (``time_offset``: a mask stamped t is compared with the particles of the step nearest
+        t − s, at most ``MAX_TIME_OFFSET_S`` back; the tracker's correction moves the current
+        particles with the same ids; s < 0 — a mask of the future — is compared with now), and
+        its initial fill (``fill_error``): a reset starts from it, and so does the current
+        episode when it has had no frame yet. ``reset`` keeps the extension; ``Extension()``
+        (name "none") goes back to the spec's model."""
+        prep = ext if isinstance(ext, Prepared) else self.prepare_extension(ext)
+        self._use(prep)
+        if self._frames == 0:
+            self._state = self._initial
+        self._history.push(self._sim_t, self._state)
 
     @property
     def sim_time_s(self) -> float:
@@ -217,7 +257,8 @@ class SessionEngine:
             with torch.no_grad():
                 for k in range(steps):
                     state = step(self._step_model, state, path[k])
-                state, _ = cull_fallen(state, self._scene.model.objects)
+                    self._history.push(self._sim_t + (k + 1) * n * self.dt / steps, state)
+                state, _ = cull_fallen(state, self._model.objects)
         ms = 1e3 * (time.perf_counter() - start)
         self._state = state
         self._sim_t += n * self.dt
@@ -228,15 +269,17 @@ class SessionEngine:
 
     def correct(self, camera: str, mask: np.ndarray) -> CorrectionResult:
         """Compare the model with an observed liquid ``mask`` (H, W) bool of ``camera`` and apply
-        the session's tracker (OPEN_LOOP only measures). IOU and overlay are from before."""
+        the session's tracker (OPEN_LOOP only measures). IOU and overlay are from before. A
+        loaded extension's camera rotation and time offset apply (:meth:`load_extension`)."""
+        from ..discrepancy.model import camera_for
         start = time.perf_counter()
-        cam = self._cameras.camera(camera)
+        cam = camera_for(self._ext, self._cameras.camera(camera))
         mask = np.asarray(mask)
         if mask.shape != (cam.height, cam.width):
             raise EngineError(BAD_REQUEST, f"mask of camera {camera!r} is {mask.shape}, its calibration says "
                                            f"{(cam.height, cam.width)} (H, W)")
         mask = mask if mask.dtype == bool else mask != 0
-        s, model = self._state, self._scene.model
+        s, model = self._compared(), self._model
         occ = list(self._scene.occluders)
         with torch.no_grad():
             poses = s.poses
@@ -252,18 +295,35 @@ class SessionEngine:
                 obs = Observation(cam, obs_mask, s.x, s.v, uv, depth, seen, cov, typical, model, poses)
                 corr = self._tracker.correct(obs)
                 if corr is not None:
-                    self._apply(corr, seen)
+                    self._apply(corr, seen, s)
         self._mask_vol.update(self._frames, cam, mask, self._frame_poses)
         return CorrectionResult(ov.iou, 1e3 * (time.perf_counter() - start), ov.image, ov.observed_px,
                                 ov.model_px, ov.overlap_px)
 
-    def _apply(self, corr, seen: torch.Tensor) -> None:
+    def _compared(self) -> FluidState:
+        """The state a mask of the latest frame is compared with: now, or with a time offset s > 0
+        the kept step nearest the frame's time − s."""
+        s = self._ext.time_offset_s
+        past = self._history.at(self._frame_t - s) if s > 0 and self._frame_t is not None else None
+        return self._state if past is None else past
+
+    def _apply(self, corr, seen: torch.Tensor, src: FluidState) -> None:
+        """Move the current particles by ``corr`` computed on ``src``'s ``seen`` particles (the
+        current state, or a past one: then matched by particle id; culled ones are skipped)."""
         s = self._state
         idx = seen.nonzero().squeeze(1)
+        dx, dv = corr.dx[idx].to(s.x), None if corr.dv is None else corr.dv[idx].to(s.v)
+        if src is not s:
+            where = torch.full((int(self._initial.x.shape[0]),), -1, dtype=torch.long, device=s.x.device)
+            where[s.ids] = torch.arange(s.ids.numel(), device=s.x.device)
+            at = where[src.ids[idx]]
+            keep = at >= 0
+            idx, dx = at[keep], dx[keep]
+            dv = None if dv is None else dv[keep]
         x, v = s.x.clone(), s.v.clone()
-        x[idx] = collide_move(self._scene.model, s.x[idx], corr.dx[idx].to(s.x), s.poses, s.poses)
-        if corr.dv is not None:
-            v[idx] = v[idx] + corr.dv[idx].to(v)
+        x[idx] = collide_move(self._model, s.x[idx], dx, s.poses, s.poses)
+        if dv is not None:
+            v[idx] = v[idx] + dv
         self._state = FluidState(x, v, s.ids, s.poses, s.t)
         self._volumes = None
 
