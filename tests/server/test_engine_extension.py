@@ -74,7 +74,9 @@ def test_fill_error_refills_the_source_and_reset_keeps_it(rec, engines):
     eng.load_extension(Extension("fill_error", {"value": 0.2}))       # no frame yet: starts from it now
     n1, ml1 = eng.n_particles, eng.volumes()["source"]
     print(f"\nfill_error 0.2: {n0} → {n1} particles ({n1 / n0:.3f}×), {ml0:.2f} → {ml1:.2f} ml held")
-    assert 1.12 < n1 / n0 < 1.28 and 1.08 < ml1 / ml0 < 1.3
+    # The fill tool packs a refill a little differently (here 379 particles for 27.4 ml settled):
+    # the volume follows the stated × 1.2, the particle count about does.
+    assert 1.14 < ml1 / ml0 < 1.26 and 1.1 < n1 / n0 < 1.3
     for i in range(5):
         _frame(eng, rec, i)
     eng.reset()
@@ -161,6 +163,7 @@ def test_checkpoint_keeps_the_extension_and_continues_bit_for_bit(rec, engines):
     buf.seek(0)
     b.load_state_dict(torch.load(buf, weights_only=True))
     assert b.extension == ext and b._initial.x.shape == a._initial.x.shape
+    assert b._ml_per_particle == a._ml_per_particle != a._scene.ml_per_particle
     assert float(b._step_model.params.lambda_v) == 40.0
     for i in range(20, 35):
         _frame(a, rec, i)

@@ -16,6 +16,7 @@ No torch: this package depends only on numpy, protobuf, Zenoh, mcap and liquidtw
 
 from .connection import (CREATE_TIMEOUT_S, DEFAULT_CONNECT, RPC_TIMEOUT_S, TRACKING_MODES, Client,
                          ServerError, tracking_mode)
+from .models import Discrepancy, model_text
 from .messages import (STREAM_TYPES, Output, decode_particles, encode_camera, encode_image,
                        encode_mask, encode_poses)
 from .recording import ChannelSummary, RecordingError, RecordingSummary, summarize_recording
@@ -26,11 +27,11 @@ from .stream import RATES, StreamAborted, stream_replay
 from .summary import StreamSummary, Tally, format_table
 
 __all__ = [
-    "CREATE_TIMEOUT_S", "ChannelSummary", "Client", "DEFAULT_CONNECT", "Frame", "InputSample",
+    "CREATE_TIMEOUT_S", "ChannelSummary", "Client", "DEFAULT_CONNECT", "Discrepancy", "Frame", "InputSample",
     "ObjectMeshArrays", "Output", "RATES", "RPC_TIMEOUT_S", "RecordingError",
     "RecordingSummary", "Replay", "ResultMessage", "ResultsWriter", "STREAM_TYPES",
     "Inference", "ServerError", "SessionHandle", "StreamAborted", "StreamSummary", "TRACKING_MODES", "Tally",
     "decode_particles", "encode_camera", "encode_image", "encode_mask", "encode_poses",
-    "format_table", "load_replay", "read_results", "stream_replay", "summarize_recording",
+    "format_table", "load_replay", "model_text", "read_results", "stream_replay", "summarize_recording",
     "tracking_mode",
 ]

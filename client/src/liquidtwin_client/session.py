@@ -17,8 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import zenoh
-from liquidtwin_proto import (IN_STREAMS, OUT_STREAMS, InferBlockageRequest, InferenceReply, InferFillRequest,
-                              SceneMeshes, SessionRequest, SessionStatus, SetTaskRequest, Task,
+from liquidtwin_proto import (IN_STREAMS, OUT_STREAMS, DiscrepancyReply, DiscrepancyRequest, InferBlockageRequest,
+                              InferenceReply, InferFillRequest, LoadModelRequest, SceneMeshes, SessionRequest,
+                              SessionStatus, SetTaskRequest, Task,
                               decode_attachment, encode_attachment, make_header, now_ns, unpack_array)
 
 from .connection import RPC_TIMEOUT_S, Client, tracking_mode
@@ -27,6 +28,7 @@ from .connection import RPC_TIMEOUT_S, Client, tracking_mode
 INFER_TIMEOUT_S = 600.0
 from .messages import (Output, decode_output, encode_camera, encode_image, encode_mask,
                        encode_poses)
+from .models import DISCREPANCY_TIMEOUT_S, Discrepancy, discrepancy_result, model_text
 
 _log = logging.getLogger(__name__)
 #: Default capacity of the outputs queue; when full the oldest output is dropped.
@@ -237,6 +239,31 @@ class SessionHandle:
         return Inference({h.name: h.probability for h in reply.hypotheses},
                          {h.name: h.log_likelihood for h in reply.hypotheses}, reply.best,
                          np.asarray(reply.times_s), over, int(reply.frames), float(reply.wall_s))
+
+    def discrepancy(self, camera: str | None = None, candidates=None, null_runs: int | None = None,
+                    calibrate: bool | None = None, timeout: float = DISCREPANCY_TIMEOUT_S) -> Discrepancy:
+        """What does the session's model get wrong on the frames sent since the last reset, and
+        which model extension explains it (``liquidtwin discrepancy`` on the session's own log)?
+        ``camera``: whose masks (default the first with masks); ``candidates``: names to try
+        (default all); ``null_runs``: base-model realisations for the false-discovery null;
+        ``calibrate``: fit λ_v, λ_c first (None: the analysis's defaults). Takes minutes."""
+        req = DiscrepancyRequest(header=self._header(), session_id=self.session_id, camera=camera or "",
+                                 candidates=list(candidates or ()))
+        if null_runs is not None:
+            if isinstance(null_runs, bool) or int(null_runs) != null_runs or null_runs < 0:
+                raise ValueError(f"null_runs must be a whole number >= 0, got {null_runs!r}")
+            req.null_runs = int(null_runs)
+        if calibrate is not None:
+            req.calibrate = bool(calibrate)
+        key = self.client.keys.rpc("discrepancy", self.session_id)
+        return discrepancy_result(self.client.call(key, req, DiscrepancyReply, timeout))
+
+    def load_model(self, model, timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
+        """Run a model extension from now on: ``model`` a model file dict (``Discrepancy.model``),
+        an ``Extension``, JSON text or a model file path. The reply's ``model_json`` names it;
+        a reset keeps it. The server refuses an invalid one (ServerError BAD_REQUEST)."""
+        req = LoadModelRequest(header=self._header(), session_id=self.session_id, model_json=model_text(model))
+        return self._rpc("load_model", req, timeout)
 
     def close(self, timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
         """Close the session on the server (state "closed") and release this handle."""

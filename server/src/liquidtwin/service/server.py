@@ -18,8 +18,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import zenoh
 from google.protobuf.descriptor import FieldDescriptor
-from liquidtwin_proto import (CreateSessionRequest, Error, InferBlockageRequest, InferFillRequest, Keys,
-                              ListSessionsReply, ListSessionsRequest,
+from liquidtwin_proto import (CreateSessionRequest, DiscrepancyRequest, Error, InferBlockageRequest, InferFillRequest,
+                              Keys, ListSessionsReply, ListSessionsRequest, LoadModelRequest,
                               SessionRequest, SetTaskRequest, WireError, error_bytes, make_header, parse_request,
                               validate_id, validate_session_id)
 
@@ -30,9 +30,10 @@ from .outputs import scene_meshes
 from .session import ServedSession
 
 _log = logging.getLogger("liquidtwin.serve")
-SESSION_METHODS = ("status", "reset", "close", "set_task", "meshes", "infer_fill", "infer_blockage")
+SESSION_METHODS = ("status", "reset", "close", "set_task", "meshes", "infer_fill", "infer_blockage", "discrepancy",
+                   "load_model")
 #: Session RPCs that run a long analysis: served by their own pool so status/reset stay quick.
-SLOW_METHODS = ("infer_fill", "infer_blockage")
+SLOW_METHODS = ("infer_fill", "infer_blockage", "discrepancy")
 #: Seconds a session's client token may be unseen at creation/restore before it counts as gone.
 TOKEN_SETTLE_S = 2.0
 _REJECT_LOG_EVERY_S = 10.0
@@ -209,8 +210,8 @@ class Server:
             raise WireError(f"unknown RPC {parsed.name!r}; methods: create_session, list_sessions")
         if parsed.name not in SESSION_METHODS:
             raise WireError(f"unknown session RPC {parsed.name!r}; methods: {', '.join(SESSION_METHODS)}")
-        cls = {"set_task": SetTaskRequest, "infer_fill": InferFillRequest,
-               "infer_blockage": InferBlockageRequest}.get(parsed.name, SessionRequest)
+        cls = {"set_task": SetTaskRequest, "infer_fill": InferFillRequest, "infer_blockage": InferBlockageRequest,
+               "discrepancy": DiscrepancyRequest, "load_model": LoadModelRequest}.get(parsed.name, SessionRequest)
         req = parse_request(cls, payload, max_bytes=limit, session_id=parsed.session)
         s = self.sessions.get(parsed.session)
         if s is None or s.closed:
@@ -222,9 +223,13 @@ class Server:
         self._deadline[s.id] = time.monotonic() + self.config.orphan_grace_s
         if parsed.name == "meshes":
             return scene_meshes(make_header(s.id), s.meshes())
+        if parsed.name == "discrepancy":
+            return s.discrepancy(req)
         if parsed.name in SLOW_METHODS:
             return s.infer(parsed.name, req)
-        if parsed.name == "reset":
+        if parsed.name == "load_model":
+            s.load_model(req.model_json)
+        elif parsed.name == "reset":
             s.reset()
         elif parsed.name == "set_task":
             bad = _non_finite(req.task)

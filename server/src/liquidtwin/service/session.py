@@ -21,6 +21,7 @@ from liquidtwin_proto import (PROTOCOL_VERSION, Header, InferenceReply, SessionS
 from ..session import EngineError
 from ..session.errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME
 from .checkpoint import load_checkpoint, mark_closed, save_checkpoint
+from .discrepancy import discrepancy_reply, model_json, parse_model
 from .inbox import Frame, Inbox
 from .inputs import INPUT_TYPES, InputChecker, InputError, session_seconds
 from .log import SessionLog
@@ -221,7 +222,7 @@ class ServedSession:
                                sim_time_s=self.engine.sim_time_s, particles=self.engine.n_particles,
                                volumes=container_volumes(vols, mask_vols), log_path=str(self.log.path),
                                checkpoint_path=str(self.dir / "checkpoint.pt"), restored=self.restored,
-                               server_id=server_id)
+                               server_id=server_id, model_json=model_json(getattr(self.engine, "extension", None)))
         st.header.CopyFrom(Header(session_id=self.id, stamp_ns=now_ns(), version=PROTOCOL_VERSION))
         st.frames_done = self.inbox.state()["counters"]["frames_done"]
         if self.task is not None:
@@ -248,18 +249,23 @@ class ServedSession:
         with self.lock:
             return self.engine.meshes()
 
+    def _recording(self):
+        """The inputs logged since the last reset as a Recording (EngineError INFEASIBLE: none yet)."""
+        from .history import NoFramesError, session_recording
+        with self.lock:
+            cameras = self.engine.camera_calibrations()
+        try:
+            return session_recording(self.dir, self.spec, self.engine.object_names, cameras, since_ns=self._episode_ns)
+        except NoFramesError as exc:
+            raise EngineError(INFEASIBLE, f"session {self.id}: {exc}") from None
+
     def infer(self, method: str, req) -> InferenceReply:
         """``infer_fill`` / ``infer_blockage`` on the inputs logged since the last reset: the
         hypothesis bank runs on this thread (the session's worker carries on)."""
         from ..inference import infer_blockage, infer_fill
-        from .history import NoFramesError, inference_reply, session_recording
-        with self.lock:
-            cameras = self.engine.camera_calibrations()
-            tracking = self.spec.tracking
-        try:
-            rec = session_recording(self.dir, self.spec, self.engine.object_names, cameras, since_ns=self._episode_ns)
-        except NoFramesError as exc:
-            raise EngineError(INFEASIBLE, f"session {self.id}: {exc}") from None
+        from .history import inference_reply
+        tracking = self.spec.tracking
+        rec = self._recording()
         mode = _MODE_NAMES.get(req.tracking or tracking, "warp_field")
         try:
             if method == "infer_fill":
@@ -272,6 +278,20 @@ class ServedSession:
         except ValueError as exc:
             raise EngineError(BAD_REQUEST, str(exc)) from None
         return inference_reply(self._header(now_ns()), post)
+
+    def discrepancy(self, req):
+        """``discrepancy`` (a DiscrepancyReply) on the inputs logged since the last reset; runs on
+        this thread (the session's worker carries on)."""
+        return discrepancy_reply(self._header(now_ns()), self._recording(), req)
+
+    def load_model(self, text: str) -> None:
+        """Run the model file ``text`` (JSON) from now on; EngineError when it is not a valid one
+        (the session keeps its current model). A fill_error refill settles outside the lock."""
+        prepared = self.engine.prepare_extension(parse_model(text))
+        with self.lock:
+            self.engine.load_extension(prepared)
+            self._dirty = True
+        _log.info("session %s: model %s loaded", self.id, model_json(prepared.ext) or "none")
 
     def close(self, final: bool = True) -> None:
         """Stop the worker, write a last checkpoint, close the log and publishers. ``final``:

@@ -43,6 +43,7 @@ def engine_state(engine) -> dict:
     if engine._initial is not engine._scene.state:
         x0, v0 = engine._initial.by_id()
         out["initial_x"], out["initial_v"] = x0.detach().cpu().clone(), v0.detach().cpu().clone()
+        out["initial_ml_per_particle"] = float(engine._ml_per_particle)
     return out
 
 
@@ -83,5 +84,5 @@ def _load_extension(engine, state: dict) -> None:
         ext = model_from_dict(json.loads(state["extension"])) if state.get("extension") else Extension()
     except ValueError as exc:
         raise EngineError(BAD_REQUEST, f"the checkpoint's model extension is not valid: {exc}") from None
-    initial = (state["initial_x"], state["initial_v"]) if "initial_x" in state else None
+    initial = (state["initial_x"], state["initial_v"], state["initial_ml_per_particle"]) if "initial_x" in state else None
     engine.load_extension(engine.prepare_extension(ext, initial=initial))

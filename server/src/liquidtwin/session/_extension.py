@@ -43,11 +43,13 @@ _RANGES = {  # name: (lowest, highest, unit) — open below where the value must
 class Prepared:
     """An extension (``ext``, a :class:`~liquidtwin.discrepancy.Extension`) ready to load:
     ``model`` the FluidModel the steps use (before the tracker's terms), ``initial`` the
-    settled fill a reset goes back to (on the session's device)."""
+    settled fill a reset goes back to (on the session's device), ``ml_per_particle`` its
+    settled ml per particle (a refill packs its particles a little differently)."""
 
     ext: object
     model: FluidModel
     initial: FluidState
+    ml_per_particle: float
 
 
 def check(ext) -> None:
@@ -87,9 +89,10 @@ def _cpu(model: FluidModel) -> FluidModel:
                          params=model.params.to(device="cpu"))
 
 
-def refill(scene, spec, scale: float, device: str) -> FluidState:
+def refill(scene, spec, scale: float, device: str) -> tuple[FluidState, float]:
     """The scene's initial fill with the source holding its asked ml × ``scale`` (settled as
-    the session's own fill); EngineError(INFEASIBLE) when that does not fit."""
+    the session's own fill) and its settled ml per particle; EngineError(INFEASIBLE) when that
+    does not fit."""
     from ..scenes.fill import fill_container
     from ._build import SETTLE_S
     name, k = source_of(scene, spec)
@@ -97,8 +100,8 @@ def refill(scene, spec, scale: float, device: str) -> FluidState:
     model = scene.model if device == "cpu" else _cpu(scene.model)
     poses = torch.as_tensor(scene.initial_poses)
     try:
-        s, _ = fill_container(model, poses, k, scene.objects[k], volume_ml=max(rep.asked_ml * round(scale, 4), 1e-3),
-                              settle_s=SETTLE_S)
+        s, new = fill_container(model, poses, k, scene.objects[k], volume_ml=max(rep.asked_ml * round(scale, 4), 1e-3),
+                                settle_s=SETTLE_S)
     except ValueError as exc:
         raise EngineError(INFEASIBLE, f"model extension fill_error: cannot refill {name!r} × {scale:.3f}: {exc}") from None
     xs, vs = s.by_id()
@@ -106,12 +109,14 @@ def refill(scene, spec, scale: float, device: str) -> FluidState:
     others = int(x0.shape[0]) - rep.particles          # the other fills follow the source's, in id order
     if others:
         xs, vs = torch.cat([xs, x0[-others:].cpu()]), torch.cat([vs, v0[-others:].cpu()])
-    return make_state(xs, vs, poses=poses, dtype=torch.float32, device=device)
+    ml = new.settled_ml + sum(r.settled_ml for n, r in scene.fills.items() if n != name)
+    return make_state(xs, vs, poses=poses, dtype=torch.float32, device=device), ml / int(xs.shape[0])
 
 
 def prepare(ext, scene, spec, device: str, initial: tuple | None = None) -> Prepared:
     """Check ``ext`` and build its model and initial fill (slow for ``fill_error``: a refill).
-    ``initial``: (x (N, 3) m, v (N, 3) m/s) of an already made fill (a checkpoint's)."""
+    ``initial``: (x (N, 3) m, v (N, 3) m/s, ml per particle) of an already made fill (a
+    checkpoint's)."""
     from ..discrepancy.model import apply_physics
     check(ext)
     try:
@@ -119,13 +124,13 @@ def prepare(ext, scene, spec, device: str, initial: tuple | None = None) -> Prep
     except ValueError as exc:
         raise EngineError(BAD_REQUEST, f"model extension {ext.name!r}: {exc}") from None
     if initial is not None:
-        x, v = initial
+        x, v, ml = initial
         state = make_state(x, v, poses=torch.as_tensor(scene.initial_poses), dtype=torch.float32, device=device)
     elif ext.fill_scale != 1.0:
-        state = refill(scene, spec, ext.fill_scale, device)
+        state, ml = refill(scene, spec, ext.fill_scale, device)
     else:
-        state = scene.state
-    return Prepared(ext, model, state)
+        state, ml = scene.state, scene.ml_per_particle
+    return Prepared(ext, model, state, float(ml))
 
 
 class History:

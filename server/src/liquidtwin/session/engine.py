@@ -127,7 +127,7 @@ class SessionEngine:
         self._radius_m = particle_radius(float(scene.model.spacing))
         from ..discrepancy.model import Extension          # discrepancy builds on this package
         self._history = History()
-        self._use(Prepared(Extension(), scene.model, scene.state))
+        self._use(Prepared(Extension(), scene.model, scene.state, scene.ml_per_particle))
         self._capacity = {n: scene.objects[scene.names.index(n)].capacity_ml for n in scene.containers}
         self._voxels = {n: CavityVoxels(scene.objects[scene.names.index(n)]) for n in scene.containers}
         # Model-based volumes from the masks alone (SPEC §5): filters per container, in the checkpoint.
@@ -140,6 +140,7 @@ class SessionEngine:
     def _use(self, prep: Prepared) -> None:
         """Run ``prep``'s model (plus any term the tracker runs inside the solver) from now on."""
         self._ext, self._model, self._initial = prep.ext, prep.model, prep.initial
+        self._ml_per_particle = prep.ml_per_particle
         extra = tuple(self._tracker.terms())
         self._step_model = dataclasses.replace(prep.model, terms=prep.model.terms + extra) if extra else prep.model
         self._history.span_s = min(max(prep.ext.time_offset_s, 0.0), MAX_TIME_OFFSET_S)
@@ -337,13 +338,14 @@ class SessionEngine:
         return self._state.by_id()[1].detach().norm(dim=1).cpu().numpy().astype(np.float32)
 
     def volumes(self) -> dict:
-        """{container: ml}: particles the container holds × the fills' settled ml per particle."""
+        """{container: ml}: particles the container holds × the fills' settled ml per particle
+        (of the loaded extension's fill, see :meth:`load_extension`)."""
         if self._volumes is None or self._volumes[0] != self._frames:
             out = {}
             for name in self.container_names:
                 k = self.object_names.index(name)
                 out[name] = held_count_fast(self._scene.model, self._state, k, self._scene.objects[k],
-                                            self._voxels[name]) * self._scene.ml_per_particle
+                                            self._voxels[name]) * self._ml_per_particle
             self._volumes = (self._frames, out)
         return dict(self._volumes[1])
 
