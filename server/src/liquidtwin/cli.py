@@ -195,6 +195,8 @@ from .evaluate.cli import HELP as _EVAL_HELP, configure as _eval_configure, run 
 COMMANDS["evaluate"] = Command(_EVAL_HELP, _eval_run, _eval_configure)
 from .discrepancy.cli import HELP as _DISC_HELP, configure as _disc_configure, run as _disc_run  # noqa: E402
 COMMANDS["discrepancy"] = Command(_DISC_HELP, _disc_run, _disc_configure)
+from .sysid.cli import HELP as _FIT_HELP, configure as _fit_configure, run as _fit_run  # noqa: E402
+COMMANDS["fit"] = Command(_FIT_HELP, _fit_run, _fit_configure)
 
 
 def build_parser() -> argparse.ArgumentParser:
