@@ -7,6 +7,12 @@ Adam step. Parameters are optimised in units of their usual size (:data:`SCALES`
 thesis's learning rate 1e-2 moves λ_c by ~0.001 and λ_v by ~0.6 1/s per iteration; they are
 kept ≥ 0.
 
+A batch whose gradient is far larger than usual (a splash or a thin-wall collision that the
+model reproduces only chaotically, even at the true parameters) would kick a converged fit
+away: gradients are clipped to :data:`CLIP` × the running mean of the (clipped) gradient
+norms (after :data:`WARMUP` iterations). Measured on the ladle at λ_c 0.05, λ_v 60: without
+clipping a fit within 0.5 % at iteration 100–260 was kicked to 13 % off by iteration 280.
+
 The estimate is the mean of the last :data:`TAIL` of the iterates (Polyak averaging, which
 removes Adam's last-step jitter) and its uncertainty their standard deviation — the
 optimiser's spread at convergence, not a posterior width.
@@ -32,6 +38,8 @@ SCALES = {"lambda_c": 0.1, "lambda_v": 60.0, "lambda_s": 0.1, "lambda_omega": 1.
 LOSSES = ("l1", "projection")
 #: Distance between batch samples simulated together, m (≫ h and the scenes' size).
 OFFSET_M = 2.0
+#: Gradient clipping: at most CLIP × the running mean norm (EMA weight EMA), after WARMUP iterations.
+CLIP, EMA, WARMUP = 3.0, 0.1, 10
 #: Fraction of the last iterates averaged into the estimate.
 TAIL = 0.1
 
@@ -74,7 +82,8 @@ class FitConfig:
 class FitResult:
     """``values`` / ``std``: {param: estimate, spread}; ``history``: (iterations + 1, P)
     parameter values after each iteration (row 0 = init); ``losses``: (iterations,) batch
-    losses; ``wall_s``; ``particle_steps_per_s`` (forward and backward together)."""
+    losses; ``wall_s``; ``particle_steps_per_s`` (forward and backward together); ``clipped``:
+    iterations whose gradient was clipped."""
 
     params: tuple
     values: dict
@@ -84,6 +93,7 @@ class FitResult:
     wall_s: float
     particle_steps_per_s: float
     config: FitConfig
+    clipped: int = 0
 
     def relative_error(self, truth: dict) -> dict:
         """{param: |estimate − truth| / truth}."""
@@ -91,7 +101,7 @@ class FitResult:
 
     def as_dict(self) -> dict:
         return {"params": list(self.params), "values": self.values, "std": self.std,
-                "iterations": int(self.losses.shape[0]), "final_loss": float(self.losses[-1]),
+                "iterations": int(self.losses.shape[0]), "final_loss": float(self.losses[-1]), "clipped": self.clipped,
                 "wall_s": self.wall_s, "particle_steps_per_s": self.particle_steps_per_s,
                 "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(self.config).items()}}
 
@@ -170,13 +180,19 @@ def fit(seq: Sequence, cfg: FitConfig = FitConfig(), *, progress: bool = False, 
     losses = []
     t0 = time.perf_counter()
     bar = tqdm(range(cfg.iterations), desc=desc, unit="it", disable=not progress, leave=False)
-    for _ in bar:
+    ema, clipped = 0.0, 0
+    for it in bar:
         lam = theta * scale
         model = seq.model.with_params(**{p: lam[i] for i, p in enumerate(cfg.params)})
         starts = rng.integers(0, seq.steps - cfg.horizon + 1, size=cfg.batch)
         opt.zero_grad()
         loss = batch_loss(seq, model, starts, cfg, views=views)
         loss.backward()
+        norm = float(theta.grad.norm())
+        if it >= WARMUP and math.isfinite(norm) and norm > CLIP * ema:
+            theta.grad.mul_(CLIP * ema / norm)
+            norm, clipped = CLIP * ema, clipped + 1
+        ema = norm if it == 0 else (1 - EMA) * ema + EMA * norm
         opt.step()
         with torch.no_grad():
             theta.clamp_(min=0.0)
@@ -189,7 +205,7 @@ def fit(seq: Sequence, cfg: FitConfig = FitConfig(), *, progress: bool = False, 
     values = {p: float(tail[:, i].mean()) for i, p in enumerate(cfg.params)}
     std = {p: float(tail[:, i].std()) for i, p in enumerate(cfg.params)}
     work = cfg.iterations * cfg.batch * cfg.horizon * seq.particles
-    return FitResult(tuple(cfg.params), values, std, history, np.asarray(losses), wall, work / wall, cfg)
+    return FitResult(tuple(cfg.params), values, std, history, np.asarray(losses), wall, work / wall, cfg, clipped)
 
 
 assert set(SCALES) <= set(PARAM_NAMES)
