@@ -12,7 +12,7 @@ import importlib
 
 #: evaluate kind → module (relative to this package).
 KINDS = {"tracking": ".tracking", "fill": ".fill", "blockage": ".blockage", "volume": ".volume",
-         "discrepancy": ".discrepancy", "sysid": ".sysid"}
+         "discrepancy": ".discrepancy", "sysid": ".sysid", "control": ".control"}
 
 HELP = "thesis-style evaluations on generated benchmarks: " + ", ".join(KINDS)
 

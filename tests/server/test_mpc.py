@@ -1,0 +1,139 @@
+"""MPC through SPNets (issue 7): the gradient with respect to every planned control against
+finite differences, the normalised step and the limits, the plate's tilt quaternions against
+an independent composition, and a short plate run that moves the liquid towards its target."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from liquidtwin.control import MPC, ControlError
+from liquidtwin.control.plate import MAX_RATE, MAX_TILT, plate_space, run_plate, target_point, tilt_quaternion
+from liquidtwin.scenes.fill import fill_container
+from liquidtwin.sim import make_state, quat_to_matrix
+from liquidtwin.sim.sdf import quat_from_axis_angle
+from liquidtwin.sysid.data import scene_model
+
+
+@pytest.fixture(scope="module")
+def plate():
+    setup, model = scene_model("plate_tilt", 0, True)
+    k = setup.index("plate")
+    state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
+                              volume_ml=dict(setup.fills)["plate"], settle_s=0.5)
+    return setup, model, state
+
+
+def test_tilt_quaternion_is_rx_then_rz():
+    q = torch.tensor([[0.3, -0.5], [0.0, 0.0], [-0.7, 0.2]], dtype=torch.float64)
+    for (ax, az), quat in zip(q, tilt_quaternion(q)):
+        R = quat_to_matrix(quat)
+        ref = quat_to_matrix(quat_from_axis_angle([1, 0, 0], ax)) @ quat_to_matrix(quat_from_axis_angle([0, 0, 1], az))
+        assert torch.allclose(R, ref.to(R), atol=1e-12)
+        assert float(quat.norm()) == pytest.approx(1.0)
+
+
+def test_positions_integrate_and_respect_the_limits(plate):
+    setup, _, _ = plate
+    space = plate_space(setup)
+    u = torch.full((5, 2), 2.0, dtype=torch.float64)
+    q = space.positions(torch.zeros(2, dtype=torch.float64), u, 0.1)
+    assert torch.allclose(q[:3, 0], torch.tensor([0.2, 0.4, 0.6], dtype=torch.float64))
+    assert float(q.max()) == pytest.approx(MAX_TILT)                    # 0.8, 1.0 clamped at 45°
+    poses = space.poses(q)
+    assert poses.shape == (5, len(setup.objects), 7)
+    assert torch.equal(poses[:, 1:], space.base_poses[1:].expand(5, -1, -1))   # bowls stay
+
+
+def test_horizon_gradient_matches_finite_differences(plate):
+    setup, model, state = plate
+    s64 = make_state(*state.by_id(), poses=state.poses.double(), dtype=torch.float64)
+    aim = target_point(setup, 2).double()
+    mpc = MPC(model, plate_space(setup), lambda s, k, q: (s.x - aim).norm(dim=1).mean(), horizon=4)
+    q0 = torch.tensor([0.05, -0.1], dtype=torch.float64)
+    u = torch.tensor([[1.0, -0.5], [0.8, 0.2], [-0.3, 0.6], [0.1, 0.1]], dtype=torch.float64, requires_grad=True)
+    (g,) = torch.autograd.grad(mpc.horizon_loss(s64, q0, u), u)
+    eps = 1e-4
+    for i, j in [(0, 0), (0, 1), (1, 1), (2, 0)]:
+        d = torch.zeros_like(u)
+        d[i, j] = eps
+        with torch.no_grad():
+            fd = (float(mpc.horizon_loss(s64, q0, u + d)) - float(mpc.horizon_loss(s64, q0, u - d))) / (2 * eps)
+        print(f"\n∂L/∂u[{i},{j}]: autograd {float(g[i, j]):.6g}, finite differences {fd:.6g}")
+        assert float(g[i, j]) == pytest.approx(fd, rel=2e-3, abs=1e-9)
+
+
+def test_update_moves_every_control_by_the_step_and_shifts_the_plan(plate):
+    setup, model, state = plate
+    aim = target_point(setup, 0)
+    mpc = MPC(model, plate_space(setup), lambda s, k, q: (s.x - aim).norm(dim=1).mean(), horizon=3, step_size=0.25)
+    u0, loss = mpc.update(state, torch.zeros(2, dtype=torch.float64))
+    assert math.isfinite(loss) and mpc.plan.shape == (3, 2)
+    assert float(u0.norm()) == pytest.approx(0.25, rel=1e-6)               # from 0: one normalised step
+    assert torch.equal(mpc.plan[-1], mpc.plan[-2])                         # shifted, last repeated
+    mpc.plan = torch.full((3, 2), 10.0, dtype=torch.float64)
+    u1, _ = mpc.update(state, torch.zeros(2, dtype=torch.float64))
+    assert float(u1.abs().max()) <= MAX_RATE
+    with pytest.raises(ControlError, match="horizon"):
+        MPC(model, plate_space(setup), lambda s, k, q: s.x.sum(), horizon=0)
+    with pytest.raises(ControlError, match="target"):
+        run_plate(setup, model, state, 8, seconds=0.1)
+
+
+def test_a_short_plate_run_sends_the_liquid_towards_its_bowl(plate):
+    setup, model, state = plate
+    target = 6
+    phi = 2 * math.pi * target / 8
+    direction = np.array([math.cos(phi), math.sin(phi)])
+    r = run_plate(setup, model, state, target, seconds=0.35)
+    tilt = np.radians(r.tilts_deg[-1])
+    # The plate's normal after the tilt: where it leans, the liquid flows.
+    R = quat_to_matrix(tilt_quaternion(torch.tensor(tilt[None]))[0]).numpy()
+    lean = R @ np.array([0.0, 1.0, 0.0])
+    print(f"\ntilt after 0.35 s {r.tilts_deg[-1].round(1)} deg, lean {lean.round(3)}, target direction {direction.round(3)}")
+    assert lean[[0, 2]] @ direction > 0.8 * np.linalg.norm(lean[[0, 2]]) > 0.05
+    moved = (r.centroid - state.x.mean(0).numpy())[[0, 2]]
+    print(f"liquid centroid moved {moved.round(4)} m")
+    assert moved @ direction > 0.01
+
+
+@pytest.fixture(scope="module")
+def cup():
+    from liquidtwin.generate.catalog import build_setup
+    from liquidtwin.generate.world import MODEL_ITERATIONS, MODEL_RELAXATION
+    from liquidtwin.sim import FluidModel
+    setup = build_setup("pour_hold", np.random.default_rng(0), quick=True, source="cup", target="bowl", fraction=0.9)
+    model = FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
+                              objects=[o.grid for o in setup.objects])
+    k = setup.index("source")
+    state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
+                                volume_ml=40.0, settle_s=0.3)
+    return setup, model, state, rep.settled_ml / state.x.shape[0]
+
+
+def test_the_cup_turns_about_its_lip(cup):
+    from liquidtwin.control.pour import lip_space
+    setup, _, _, _ = cup
+    space, lip = lip_space(setup)
+    angles = torch.tensor([[0.0], [0.4], [1.2], [2.5]], dtype=torch.float64)
+    poses = space.poses(angles)[:, space.index]
+    local = torch.as_tensor(setup.objects[space.index].motion.pivot, dtype=torch.float64)
+    for p, a in zip(poses, angles[:, 0]):
+        assert torch.allclose(p[:3] + quat_to_matrix(p[3:]) @ local, lip, atol=1e-12)   # the lip stays put
+        assert torch.allclose(p[3:], quat_from_axis_angle([0, 0, 1], a), atol=1e-12)
+    assert torch.allclose(poses[0], torch.as_tensor(setup.poses_at(0.0)[space.index]), atol=1e-9)
+
+
+def test_a_pour_tilts_the_cup_and_refuses_what_it_cannot_pour(cup):
+    from liquidtwin.control.pour import run_pour
+    setup, model, state, mlpp = cup
+    with pytest.raises(ControlError, match="holds"):
+        run_pour(setup, model, state, 500.0, mlpp)
+    with pytest.raises(ControlError, match="cannot pour"):
+        run_pour(setup, model, state, float("nan"), mlpp)
+    r = run_pour(setup, model, state, 10.0, mlpp, max_seconds=0.25)
+    print(f"\ncup angle after 0.25 s: {r.angles_deg[-1]:.1f}° (every 5 steps: {r.angles_deg[::5].round(1)})")
+    assert r.angles_deg[-1] > 10.0 and np.all(np.diff(r.angles_deg) >= -1e-9)
