@@ -12,7 +12,8 @@ import importlib
 
 #: evaluate kind → module (relative to this package).
 KINDS = {"tracking": ".tracking", "fill": ".fill", "blockage": ".blockage", "volume": ".volume",
-         "discrepancy": ".discrepancy", "sysid": ".sysid", "control": ".control"}
+         "discrepancy": ".discrepancy", "sysid": ".sysid", "control": ".control",
+         "perception": ".perception"}
 
 HELP = "thesis-style evaluations on generated benchmarks: " + ", ".join(KINDS)
 
