@@ -48,7 +48,7 @@ apt:
 	fi
 
 test: venv apt
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --durations=20 tests
 
 demo: venv
 	$(VENV)/bin/liquidtwin demo $(ARGS)

@@ -227,3 +227,17 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _perception_configure(p: argparse.ArgumentParser) -> None:
+    from .perception.cli import configure
+    configure(p)
+
+
+def _perception_run(args: argparse.Namespace) -> int:
+    from .perception.cli import run
+    return run(args)
+
+
+COMMANDS["perception"] = Command("liquid detection from RGB: make the dataset, train a detector, run one on a "
+                                 "recording", _perception_run, _perception_configure)

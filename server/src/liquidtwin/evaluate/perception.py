@@ -1,6 +1,8 @@
 """``liquidtwin evaluate perception``: liquid detection from RGB, thesis Fig. 4.13 layout.
 
-Trains each detector of the grid on the generated training pours (perception.data: cup
+Trains each detector of the grid (FCNs first; a multi-frame or recurrent network starts
+its input block from the trained FCN of the same input, as in the thesis) on the generated
+training pours (perception.data: cup
 and bottle into bowl, fruit bowl, dog dish) and scores it on those and on the test pours
 with containers never seen in training (mug into pan): area under the precision–recall
 curve with 0, 1, 2 and 4 px slack (at the network's 160×120), plus the optical-flow
@@ -72,12 +74,16 @@ def _train_one(work) -> dict:
     from ..perception import parameter_count, save_model
     from ..perception.data import load_split
     from ..perception.train import TrainConfig, detect, encode_clips, train
+    from ..perception import load_model
     (kind, input_type, fusion), data, out, crop_it, full_it, seed = work
     train_clips, test_clips = load_split(data, "train"), load_split(data, "test")
     cfg = TrainConfig(kind=kind, input_type=input_type, fusion=fusion, crop_iterations=crop_it,
                       full_iterations=full_it, seed=seed)
-    net, info = train(train_clips, cfg, progress=False)
+    init = Path(out) / "models" / f"fcn-{input_type}-{fusion}.pt"
+    init = init if kind != "fcn" and init.is_file() else None
+    net, info = train(train_clips, cfg, progress=False, init=None if init is None else load_model(init)[0])
     res = {"kind": kind, "input_type": input_type, "fusion": fusion, "parameters": parameter_count(net),
+           "init": None if init is None else init.name,
            "train_wall_s": info["wall_s"], "final_loss": float(np.mean(info["loss_history"][-20:]))}
     for split, clips in (("train", train_clips), ("test", test_clips)):
         probs = [detect(net, x) for x in encode_clips(clips, input_type)]
@@ -114,9 +120,15 @@ def run(args) -> int:
     (args.out / "models").mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     base = _baseline(args.data)
-    work = [(g, args.data, args.out, args.crop_iterations, args.full_iterations, args.seed) for g in grid]
-    results = list(tqdm(map_jobs(_train_one, work, args.jobs), total=len(work), desc="networks", unit="net",
-                        disable=args.no_progress))
+    # FCNs first: the multi-frame and recurrent networks start from the FCN of their input (thesis)
+    results = []
+    bar = tqdm(total=len(grid), desc="networks", unit="net", disable=args.no_progress)
+    for phase in ([g for g in grid if g[0] == "fcn"], [g for g in grid if g[0] != "fcn"]):
+        work = [(g, args.data, args.out, args.crop_iterations, args.full_iterations, args.seed) for g in phase]
+        for r in map_jobs(_train_one, work, args.jobs):
+            results.append(r)
+            bar.update()
+    bar.close()
     best = max(results, key=lambda r: r["test"]["0"])
     doc = {"kind": "perception", "quick": args.quick, "seed": args.seed, "data": str(args.data),
            "slacks": list(SLACKS), "wall_s": time.perf_counter() - t0, "baseline": base, "results": results,
