@@ -31,7 +31,7 @@ def _session_spec() -> pb.SessionSpec:
         scene=_spec(), cameras=[_camera()],
         fluid=pb.FluidParameters(lambda_c=0.1, lambda_v=60.0, lambda_s=0.0, lambda_omega=1.0,
                                  relaxation=4.0),
-        tracking=pb.WARP_FIELD, device="cpu", correction_gain=0.5)
+        tracking=pb.WARP_FIELD, device="cpu", correction_gain=0.5, mask_source="rgb")
 
 
 def _camera() -> pb.CameraSetup:

@@ -63,6 +63,10 @@ def _add_stream(commands) -> None:
     p.add_argument("--tracking", choices=sorted(TRACKING_MODES), default="warp_field",
                    help="how the server corrects the simulation with the masks "
                    "(default: warp_field)")
+    p.add_argument("--masks", choices=("recorded", "rgb"), default="recorded",
+                   help="recorded: send the recording's masks; rgb: send only its RGB images and have "
+                   "the server's liquid detector make the masks (session mask_source 'rgb') "
+                   "(default: recorded)")
     p.add_argument("--connect", metavar="EP", default=DEFAULT_CONNECT,
                    help=f"Zenoh endpoint of the server or router (default: {DEFAULT_CONNECT})")
     p.add_argument("--prefix", metavar="P", default=DEFAULT_PREFIX,
@@ -117,7 +121,12 @@ def _stream(args: argparse.Namespace) -> int:
     writer = None
     try:
         with Client(connect=args.connect, prefix=args.prefix) as client:
-            session = client.create_session(replay.session_spec(), session_id=args.session,
+            spec = replay.session_spec()
+            if args.masks == "rgb":
+                if not any(x.stream == "image" for f in replay.stamps for x in f.samples):
+                    return fail(f"{args.recording} has no RGB images for --masks rgb")
+                spec.mask_source = "rgb"
+            session = client.create_session(spec, session_id=args.session,
                                             tracking=args.tracking, timeout=args.timeout)
             print(f"session {session.session_id}: {len(replay.frames)} frames of "
                   f"{replay.scene.name or 'scene'} at rate {args.rate}", file=sys.stderr)
@@ -127,7 +136,8 @@ def _stream(args: argparse.Namespace) -> int:
                     writer.write_status(session.last_status)
                 summary = stream_replay(session, replay, rate=args.rate,
                                         frame_timeout=args.frame_timeout, writer=writer,
-                                        tracking=args.tracking, progress=not args.no_progress)
+                                        tracking=args.tracking, progress=not args.no_progress,
+                                        skip=("mask",) if args.masks == "rgb" else ())
             finally:
                 _finish(session, writer, keep=args.keep_session)
     except (ServerError, TimeoutError, StreamAborted, ValueError, OSError) as exc:

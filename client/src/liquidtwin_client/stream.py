@@ -34,7 +34,7 @@ _TAIL_S = 2.0
 
 def stream_replay(session: SessionHandle, replay: Replay, *, rate: str = "max",
                   frame_timeout: float = 30.0, writer: ResultsWriter | None = None,
-                  tracking: str = "", progress: bool = True) -> StreamSummary:
+                  tracking: str = "", progress: bool = True, skip: tuple = ()) -> StreamSummary:
     """Publish every stamp of ``replay`` to ``session`` and gather the outputs.
 
     Args:
@@ -44,6 +44,7 @@ def stream_replay(session: SessionHandle, replay: Replay, *, rate: str = "max",
         writer: where every received output is written (None: nowhere).
         tracking: name of the tracking mode, for the summary only.
         progress: show a progress bar on stderr (only when it is a terminal).
+        skip: streams not sent (e.g. ("mask",) when the server detects liquid in the images).
 
     Returns:
         The run's StreamSummary.
@@ -83,6 +84,8 @@ def stream_replay(session: SessionHandle, replay: Replay, *, rate: str = "max",
         if rate == "realtime":
             drain_until(lambda: False, start + (frame.stamp_ns - stamp0) * 1e-9)
         for sample in frame.samples:
+            if sample.stream in skip:
+                continue
             if sample.stream == "poses":
                 tally.sent(frame.stamp_ns, now_ns())
             session.publish_raw(sample.stream, sample.payload, sample.stamp_ns)

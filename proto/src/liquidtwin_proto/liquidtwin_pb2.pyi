@@ -210,20 +210,22 @@ class CameraSetup(_message.Message):
     def __init__(self, name: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., k: _Optional[_Iterable[float]] = ..., d: _Optional[_Iterable[float]] = ..., pose: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class SessionSpec(_message.Message):
-    __slots__ = ("scene", "cameras", "fluid", "tracking", "device", "correction_gain")
+    __slots__ = ("scene", "cameras", "fluid", "tracking", "device", "correction_gain", "mask_source")
     SCENE_FIELD_NUMBER: _ClassVar[int]
     CAMERAS_FIELD_NUMBER: _ClassVar[int]
     FLUID_FIELD_NUMBER: _ClassVar[int]
     TRACKING_FIELD_NUMBER: _ClassVar[int]
     DEVICE_FIELD_NUMBER: _ClassVar[int]
     CORRECTION_GAIN_FIELD_NUMBER: _ClassVar[int]
+    MASK_SOURCE_FIELD_NUMBER: _ClassVar[int]
     scene: SceneSpec
     cameras: _containers.RepeatedCompositeFieldContainer[CameraSetup]
     fluid: FluidParameters
     tracking: TrackingMode
     device: str
     correction_gain: float
-    def __init__(self, scene: _Optional[_Union[SceneSpec, _Mapping]] = ..., cameras: _Optional[_Iterable[_Union[CameraSetup, _Mapping]]] = ..., fluid: _Optional[_Union[FluidParameters, _Mapping]] = ..., tracking: _Optional[_Union[TrackingMode, str]] = ..., device: _Optional[str] = ..., correction_gain: _Optional[float] = ...) -> None: ...
+    mask_source: str
+    def __init__(self, scene: _Optional[_Union[SceneSpec, _Mapping]] = ..., cameras: _Optional[_Iterable[_Union[CameraSetup, _Mapping]]] = ..., fluid: _Optional[_Union[FluidParameters, _Mapping]] = ..., tracking: _Optional[_Union[TrackingMode, str]] = ..., device: _Optional[str] = ..., correction_gain: _Optional[float] = ..., mask_source: _Optional[str] = ...) -> None: ...
 
 class Task(_message.Message):
     __slots__ = ("pour", "controller")

@@ -8,6 +8,7 @@ import signal
 import sys
 import threading
 import time
+from pathlib import Path
 
 from .config import DEFAULT_LISTEN, DEFAULT_STATE_DIR, ConfigError, ServeConfig
 
@@ -36,6 +37,8 @@ def add_serve_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-steps-per-frame", type=int, default=8, metavar="K",
                    help="most simulation steps per frame; beyond, the sim clock jumps (default: %(default)s)")
     p.add_argument("--threads", type=int, default=1, metavar="T", help="torch CPU threads (default: %(default)s)")
+    p.add_argument("--detector", type=Path, default=None, metavar="MODEL.pt",
+                   help="liquid detector for sessions with mask_source 'rgb' (default: the shipped model)")
     p.add_argument("--server-id", default="", metavar="ID", help="liveliness id (default: server-<pid>-<random>)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"),
                    help="server log level on stderr (default: %(default)s)")
@@ -47,7 +50,7 @@ def config_from_args(args: argparse.Namespace) -> ServeConfig:
                        device=args.device, state_dir=args.state_dir, checkpoint_s=args.checkpoint_s,
                        max_payload_bytes=int(args.max_payload_mb * 1024 * 1024), max_sessions=args.max_sessions,
                        orphan_grace_s=args.orphan_grace_s, max_steps_per_frame=args.max_steps_per_frame,
-                       threads=args.threads, server_id=args.server_id)
+                       threads=args.threads, server_id=args.server_id, detector=args.detector)
 
 
 def run_serve(args: argparse.Namespace, engine_factory=None) -> int:

@@ -22,6 +22,7 @@ MASK_MAX_AGE_S = 0.1
 IDLE_AFTER_S = 5.0
 #: Masks kept pending per camera; older ones are dropped when more arrive.
 MAX_PENDING_MASKS = 16
+MAX_PENDING_IMAGES = 8      # RGB frames waiting for the detector, per camera (~0.3 s at 30 Hz)
 
 
 class ConfigError(ValueError):
@@ -45,6 +46,8 @@ class ServeConfig:
       max_steps_per_frame: most simulation steps per frame (the clock jumps beyond).
       threads: torch CPU threads (0: torch's default).
       server_id: liveliness id of this server (a key chunk).
+      detector: liquid detector model file for sessions whose masks come from RGB
+        (``SessionSpec.mask_source == "rgb"``); None: the shipped model.
     """
 
     listen: list[str] = field(default_factory=lambda: [DEFAULT_LISTEN])
@@ -61,9 +64,11 @@ class ServeConfig:
     server_id: str = ""
     mask_max_age_s: float = MASK_MAX_AGE_S
     idle_after_s: float = IDLE_AFTER_S
+    detector: Path | None = None
 
     def __post_init__(self) -> None:
         self.state_dir = Path(self.state_dir)
+        self.detector = None if self.detector is None else Path(self.detector)
         if not self.server_id:
             self.server_id = f"server-{os.getpid()}-{uuid.uuid4().hex[:6]}"
         self.check()
@@ -80,6 +85,8 @@ class ServeConfig:
                 raise ConfigError(f"endpoint {ep!r} is not a Zenoh endpoint like tcp/127.0.0.1:7447")
         if not (self.device == "cpu" or self.device.startswith("cuda")):
             raise ConfigError(f"--device must be cpu or cuda[:N], got {self.device!r}")
+        if self.detector is not None and not self.detector.is_file():
+            raise ConfigError(f"--detector {self.detector} is not a file")
         for name, v, lo in (("checkpoint-s", self.checkpoint_s, 0.0), ("orphan-grace-s", self.orphan_grace_s, 0.0),
                             ("max-payload-mb", self.max_payload_bytes, 1), ("max-sessions", self.max_sessions, 1),
                             ("max-steps-per-frame", self.max_steps_per_frame, 1), ("threads", self.threads, 0)):

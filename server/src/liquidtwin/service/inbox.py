@@ -5,7 +5,10 @@ time"): a frame superseded before the worker takes it counts as ``dropped_stale`
 are kept under the newer frame's, so no object or camera loses its last pose); a sample not
 newer than the last accepted one of its stream (per camera for camera/mask/image) counts as
 ``dropped_out_of_order``. A frame at stamp t takes the newest mask with stamp ≤ t that no
-earlier frame used, if it is at most ``mask_max_age_s`` old.
+earlier frame used, if it is at most ``mask_max_age_s`` old. An inbox made with
+``keep_images`` (sessions whose masks come from the server's detector) also hands each frame
+every pending RGB image with stamp ≤ t, oldest first, so the detector sees every image in
+order (its recurrent state integrates them); at most MAX_PENDING_IMAGES per camera wait.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 
-from .config import MAX_PENDING_MASKS
+from .config import MAX_PENDING_IMAGES, MAX_PENDING_MASKS
 from .inputs import PosesIn, Sample
 
 COUNTERS = ("frames_in", "frames_done", "dropped_stale", "dropped_out_of_order", "rejected")
@@ -28,18 +31,21 @@ class Frame:
     received_ns: int
     cameras: list = field(default_factory=list)
     mask: tuple | None = None
+    images: list = field(default_factory=list)      # [(stamp ns, camera, (H, W, 3) uint8 RGB)]
 
 
 class Inbox:
     """Thread-safe inbox of one session; ``counters`` holds the COUNTERS (shared with metrics)."""
 
-    def __init__(self, counters: dict | None = None, last: dict | None = None):
+    def __init__(self, counters: dict | None = None, last: dict | None = None, keep_images: bool = False):
         self.cv = threading.Condition()
         self.counters = {k: int((counters or {}).get(k, 0)) for k in COUNTERS}
         self.last = dict(last or {})          # order key -> last accepted stamp ns
         self._frame: Frame | None = None
         self._cameras: list = []
         self._masks: dict[str, list] = {}
+        self._images: dict[str, list] = {}
+        self.keep_images = keep_images
 
     def count(self, name: str, n: int = 1) -> None:
         with self.cv:
@@ -74,6 +80,10 @@ class Inbox:
                 pending = self._masks.setdefault(item.camera, [])
                 pending.append((stamp, item.mask))
                 del pending[:-MAX_PENDING_MASKS]
+            elif sample.stream == "image" and self.keep_images:
+                pending = self._images.setdefault(item.camera, [])
+                pending.append((stamp, item.rgb))
+                del pending[:-MAX_PENDING_IMAGES]
             return True
 
     def take(self, timeout: float, mask_max_age_s: float, stop: threading.Event) -> Frame | None:
@@ -94,6 +104,10 @@ class Inbox:
                 pending[:] = [(s, m) for s, m in pending if s > t]
             if best is not None and t - best[0] <= mask_max_age_s * 1e9:
                 frame.mask = (best[1], best[2])
+            for camera, pending in self._images.items():
+                frame.images += [(s, camera, img) for s, img in pending if s <= t]
+                pending[:] = [(s, img) for s, img in pending if s > t]
+            frame.images.sort(key=lambda it: it[0])
             return frame
 
     def wake(self) -> None:
@@ -103,7 +117,7 @@ class Inbox:
     def clear(self) -> None:
         """Forget pending frames, masks and the last stamps (a reset session starts over)."""
         with self.cv:
-            self._frame, self._masks, self.last = None, {}, {}
+            self._frame, self._masks, self._images, self.last = None, {}, {}, {}
 
     def state(self) -> dict:
         """Counters and last stamps (for checkpoints)."""

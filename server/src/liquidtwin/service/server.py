@@ -24,6 +24,7 @@ from liquidtwin_proto import (CreateSessionRequest, DiscrepancyRequest, Error, I
                               validate_id, validate_session_id)
 
 from ..session import EngineError, SessionEngine
+from .detector import make_detector
 from .checkpoint import read_meta, read_spec, restorable, sessions_root, write_session_files
 from .config import ServeConfig, zenoh_config
 from .outputs import scene_meshes
@@ -250,6 +251,7 @@ class Server:
                 validate_id(req.client_id, "client id")
         except ValueError as exc:
             raise WireError(str(exc)) from None
+        make_detector(req.spec, self.config)        # a bad mask_source or model fails here, before any work
         with self._lock:
             if sid in self.sessions or sid in self._creating:
                 raise WireError(f"session {sid!r} already exists", Error.ALREADY_EXISTS)

@@ -21,6 +21,7 @@ from liquidtwin_proto import (PROTOCOL_VERSION, Header, InferenceReply, SessionS
 from ..session import EngineError
 from ..session.errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME
 from .checkpoint import load_checkpoint, mark_closed, save_checkpoint
+from .detector import make_detector
 from .discrepancy import discrepancy_reply, model_json, parse_model
 from .inbox import Frame, Inbox
 from .inputs import INPUT_TYPES, InputChecker, InputError, session_seconds
@@ -66,7 +67,8 @@ class ServedSession:
                 self._out_seq.update(service["out_seq"])
                 self.task = Task.FromString(bytes.fromhex(service["task"])) if service["task"] else None
                 self._episode_ns = int(service.get("episode_ns", 0))
-        self.inbox = Inbox(service.get("counters"), service.get("last"))
+        self.detector = make_detector(spec, config)
+        self.inbox = Inbox(service.get("counters"), service.get("last"), keep_images=self.detector is not None)
         cams = {n: engine.camera_size(n) for n in engine.camera_names}
         self.checker = InputChecker(engine.object_names, cams, config.max_payload_bytes)
         self.log = SessionLog(directory, spec)
@@ -127,6 +129,8 @@ class ServedSession:
         stamp = int(header.stamp_ns)
         eng = self.engine
         with self.lock:
+            if frame.images and self.detector is not None:
+                self._detect(frame, stamp)
             for cam in frame.cameras:
                 try:
                     eng.set_camera(cam.name, K=cam.K, D=cam.D, width=cam.width, height=cam.height)
@@ -170,6 +174,18 @@ class ServedSession:
                                                camera=frame.mask[0] if corr is not None else "")))
         for stream, msg in out:
             self._publish(stream, msg, stamp)
+
+    def _detect(self, frame: Frame, stamp: int) -> None:
+        """Run the detector on every pending image in order; the newest one's mask is the
+        frame's observation (if fresh enough and no streamed mask is newer)."""
+        newest = None
+        for t_img, camera, rgb in frame.images:
+            try:
+                newest = (t_img, camera, self.detector(camera, rgb))
+            except ValueError as exc:               # e.g. a camera's image size changed mid-stream
+                self._reject("image", exc, "detector")
+        if newest is not None and stamp - newest[0] <= self.config.mask_max_age_s * 1e9:
+            frame.mask = (newest[1], newest[2])
 
     def _header(self, stamp: int) -> Header:
         return Header(session_id=self.id, stamp_ns=stamp, version=PROTOCOL_VERSION)
@@ -234,6 +250,8 @@ class ServedSession:
         with self.lock:
             self.engine.reset()
             self.inbox.clear()
+            if self.detector is not None:
+                self.detector.reset()
             self._first_ns, self.task, self.failed = None, None, None
             self._episode_ns = now_ns()
             self._dirty = True
