@@ -40,3 +40,27 @@ def test_register_errors_are_clear(tmp_path):
     cv2.imwrite(str(blank), np.full((60, 80), 128, np.uint8))
     with pytest.raises(SystemExit, match="register"):
         main(["perception", "register", "--thermal", str(blank), "--colour", str(blank)])
+
+
+def test_evaluate_perception_end_to_end_on_a_tiny_dataset(tmp_path, capsys):
+    """Dataset generated on the spot (1 training + 1 test pour), two tiny trainings (the
+    LSTM-FCN starts from the FCN), the table, JSON and figures."""
+    out = tmp_path / "eval"
+    assert main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--out", str(out),
+                 "--models", "fcn/grey_flow/early,lstm_fcn/grey_flow/early", "--train-seqs", "1",
+                 "--test-seqs", "1", "--crop-iterations", "4", "--full-iterations", "2", "--jobs", "1",
+                 "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "baseline (flow, §4.5.3)" in text and "lstm_fcn: AUC %" in text
+    doc = json.loads((out / "perception.json").read_text())
+    manifest = json.loads((tmp_path / "data" / "dataset.json").read_text())
+    assert [e["source"] for e in manifest["test"]] == ["mug"] and manifest["train"][0]["source"] in ("cup", "bottle")
+    by = {r["kind"]: r for r in doc["results"]}
+    assert by["fcn"]["init"] is None and by["lstm_fcn"]["init"] == "fcn-grey_flow-early.pt"
+    for r in [*doc["results"], doc["baseline"]]:
+        for split in ("train", "test"):
+            aucs = [r[split][str(s)] for s in (0, 1, 2, 4)]
+            assert all(0 <= a <= 1 for a in aucs) and aucs == sorted(aucs)     # slack only helps
+    assert (out / "pr_curves.png").stat().st_size > 0 and (out / "detections.png").stat().st_size > 0
+    with pytest.raises(SystemExit, match="KIND/INPUT/FUSION"):
+        main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--models", "unet/rgb/early"])

@@ -194,7 +194,7 @@ def _plot(out: Path, results: list[dict], base: dict, data: Path) -> None:
     # one test frame with the most liquid: image, truth, each best network's probability
     k = int(np.argmax(clips[0].masks.sum(axis=(1, 2))))
     panels = [("test frame", clips[0].frames[k]), ("truth", clips[0].masks[k])]
-    panels += [(f"{r['kind']}/{r['input_type']}", probs[0][k]) for r, probs in shown]
+    panels += [(f"{r['kind']}/{r['input_type']}/{r['fusion']}", probs[0][k]) for r, probs in shown]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 2.8))
     for ax, (title, img) in zip(axes, panels):
         ax.imshow(img, cmap=None if img.ndim == 3 else "magma", vmin=0, vmax=1)
