@@ -30,6 +30,9 @@ def main() -> None:
     p.add_argument("--fill", type=float, default=60.0, help="ml in the cup (default: %(default)s)")
     p.add_argument("--targets", default="20", help="ml to pour, comma-separated (default: %(default)s)")
     p.add_argument("--step-size", type=float, default=0.5, help="MPC step, rad/s (default: %(default)s)")
+    p.add_argument("--no-anticipate", action="store_true",
+                   help="switch when the asked amount has left the cup (the thesis's rule) instead of "
+                        "predicting what still flows while the cup turns back")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--no-history", action="store_true")
     a = p.parse_args()
@@ -45,10 +48,11 @@ def main() -> None:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     for target in (float(t) for t in a.targets.split(",")):
         t0 = time.perf_counter()
-        r = run_pour(setup, model, state, target, mlpp, step_size=a.step_size, progress=True)
+        r = run_pour(setup, model, state, target, mlpp, step_size=a.step_size, anticipate=not a.no_anticipate,
+                     progress=True)
         rec = {"what": "mpc_pour", "particles": int(state.x.shape[0]), "target_ml": target,
                "poured_ml": r.poured_ml, "left_ml": r.left_ml, "spilled_ml": r.spilled_ml,
-               "switched_s": r.switched_s, "max_angle_deg": float(np.max(r.angles_deg)),
+               "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "max_angle_deg": float(np.max(r.angles_deg)),
                "update_s": r.update_s, "wall_s": time.perf_counter() - t0, "peak_mem_bytes": None,
                "commit": commit, "date": time.strftime("%Y-%m-%d")}
         print(json.dumps(rec))

@@ -2,11 +2,16 @@
 into the bowl below, by MPC through SPNets.
 
 Control: the cup's angular velocity about its own z axis (rad/s; the angle turns the opening
-towards −x, the lip staying where it is). Piecewise loss, as the thesis: until the asked
-amount has left the cup, the mean distance of the particles still in it to the lip (the
-cup "finds" the tilt that makes them flow); then the squared tilt angle (back upright). The
-amount that has left is counted from the current state before every update; the liquid
-that leaves while the cup turns back is what makes the error.
+towards −x, the lip staying where it is). Piecewise loss, as the thesis: until the switch,
+the mean distance of the particles still in the cup to the lip (the cup "finds" the tilt
+that makes them flow); then the squared tilt angle (back upright).
+
+When to switch: the thesis switches once the asked amount has left the cup, so everything
+that still flows while the cup turns back is extra. With ``anticipate`` (default) the model
+predicts it: every ``CHECK_EVERY`` steps (every step once a prediction reached ``NEAR`` of
+the ask; from a tilt of ``MIN_CHECK_TILT`` on) a no-gradient rollout turns the cup back at the rate limit and lets the stream land; the
+switch comes at the first check whose predicted amount in the target reaches the ask. The
+return is then that same max-rate manoeuvre (what was predicted is what is done).
 """
 
 from __future__ import annotations
@@ -28,6 +33,11 @@ MIN_TILT, MAX_TILT = math.radians(-10.0), math.radians(150.0)
 MAX_RATE = 2.0
 #: Done when the cup is back within this angle and nothing is still falling.
 UPRIGHT = math.radians(3.0)
+#: Steps between drain predictions, and how long a prediction lets the stream land, s.
+CHECK_EVERY = 4
+NEAR = 0.7              # … and every step once a prediction reached this share of the ask
+MIN_CHECK_TILT = math.radians(20.0)
+LAND_S = 1.0
 
 
 def lip_space(setup, name: str = "source") -> tuple[ControlSpace, torch.Tensor]:
@@ -63,8 +73,24 @@ class PourRun:
     update_s: float
 
 
+def _return_rate(q: torch.Tensor, dt: float) -> torch.Tensor:
+    """The return manoeuvre's control: back towards upright at the rate limit, no overshoot."""
+    return -torch.clamp(q / dt, -MAX_RATE, MAX_RATE)
+
+
+@torch.no_grad()
+def predict_landed(model, state, q, space, dst: int, dst_obj, ml_per_particle: float) -> float:
+    """ml the target holds after turning back now (max-rate return, then ``LAND_S`` s)."""
+    s = state
+    steps = int(math.ceil(abs(float(q)) / (MAX_RATE * model.dt))) + int(round(LAND_S / model.dt))
+    for _ in range(steps):
+        q = space.positions(q, _return_rate(q, model.dt)[None], model.dt)[0]
+        s = step(model, s, space.poses(q[None])[0].to(s.x.dtype))
+    return float(held(model, s, dst, dst_obj)[0].sum()) * ml_per_particle
+
+
 def run_pour(setup, model, state, target_ml: float, ml_per_particle: float, *, max_seconds: float = 6.0,
-             horizon: int = 10, step_size: float = 0.5, progress: bool = False) -> PourRun:
+             horizon: int = 10, step_size: float = 0.5, anticipate: bool = True, progress: bool = False) -> PourRun:
     """Pour ``target_ml`` from the scene's source into its target from ``state``."""
     src, dst = setup.index("source"), setup.index("target")
     src_obj, dst_obj = setup.objects[src].model, setup.objects[dst].model
@@ -92,17 +118,28 @@ def run_pour(setup, model, state, target_ml: float, ml_per_particle: float, *, m
     for i in bar:
         held_now = held(model, state, src, src_obj)[0]
         left = (n - int(held_now.sum())) * ml_per_particle
-        if phase["pour"] and left >= target_ml:
-            phase["pour"], switched = False, i * model.dt
-            mpc.plan = torch.zeros_like(mpc.plan)
-        elif phase["pour"]:
-            phase["ids"] = torch.as_tensor(np.flatnonzero(held_now))
+        if phase["pour"]:
+            if anticipate:
+                near = phase.get("predicted", 0.0) >= NEAR * target_ml     # close: check every step
+                if float(q) > MIN_CHECK_TILT and (near or i % CHECK_EVERY == 0):
+                    phase["predicted"] = predict_landed(model, state, q, space, dst, dst_obj, ml_per_particle)
+                done = phase.get("predicted", 0.0) >= target_ml
+            else:
+                done = left >= target_ml
+            if done:
+                phase["pour"], switched = False, i * model.dt
+                mpc.plan = torch.zeros_like(mpc.plan)
+            else:
+                phase["ids"] = torch.as_tensor(np.flatnonzero(held_now))
         if not phase["pour"] and abs(float(q)) < UPRIGHT:
             in_dst = held(model, state, dst, dst_obj)[0]
             falling = ~(held_now | in_dst) & (state.x[:, 1].detach().numpy() > 0.005)
             if not falling.any():
                 break
-        u, _ = mpc.update(state, q)
+        if phase["pour"] or not anticipate:
+            u, _ = mpc.update(state, q)
+        else:
+            u = _return_rate(q, model.dt)
         q = space.positions(q, u[None], model.dt)[0]
         with torch.no_grad():
             state = step(model, state, space.poses(q[None])[0].to(state.x.dtype))
