@@ -2,7 +2,7 @@
 #
 #   make venv    create/update .venv (torch first and alone, then requirements.lock, then
 #                the four packages, editable); re-runs only when an install input changes
-#   make test    venv + the whole test suite
+#   make test    venv + the whole test suite, on TEST_JOBS (2) pytest-xdist workers
 #   make demo    venv + `liquidtwin demo`: server + viewer + a client streaming a bundled pour;
 #                the viewer stays up until Ctrl-C (make demo ARGS=--no-wait to exit after)
 #   make bench   venv + `liquidtwin bench` (extra flags: make bench ARGS="...")
@@ -16,6 +16,9 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.liquidtwin-installed
 PACKAGES := proto server client viewer
+# Test workers (pytest-xdist, whole files per worker so module fixtures run once): server
+# tests use one torch thread each, so 2 workers fill these 2 cores (make test TEST_JOBS=1: serial).
+TEST_JOBS ?= 2
 
 # Changing any of these re-runs the install. wildcard: server/ may not have its build
 # files yet, and a missing prerequisite must not break the other packages' installs.
@@ -48,7 +51,7 @@ apt:
 	fi
 
 test: venv apt
-	$(PY) -m pytest -q --durations=20 tests
+	$(PY) -m pytest -q -n $(TEST_JOBS) --dist loadfile --durations=20 tests
 
 demo: venv
 	$(VENV)/bin/liquidtwin demo $(ARGS)

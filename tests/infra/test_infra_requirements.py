@@ -32,7 +32,7 @@ def lock() -> dict[str, Version]:
 
 
 REQUIRED = ["numpy", "protobuf", "mcap", "mcap-protobuf-support", "foxglove-schemas-protobuf",
-            "trimesh", "tqdm", "ninja", "matplotlib", "pytest", "pyyaml", "viser",
+            "trimesh", "tqdm", "ninja", "matplotlib", "pytest", "pytest-xdist", "pyyaml", "viser",
             "grpcio-tools", "setuptools", "wheel"]
 
 

@@ -1,6 +1,7 @@
 """Discrepancy discovery, blind: the generator plants an effect and writes the truth to a
 sidecar; the analysis gets the recording path only; the test then opens the sidecar and
-compares. The small, fast subset of ``liquidtwin evaluate discrepancy`` that passes today:
+compares. The small, fast subset (this file and
+``test_discrepancy_blind_offset.py``) of ``liquidtwin evaluate discrepancy`` that passes today:
 nothing hidden → ``none`` (through the CLI, checking the report's contract), and a time
 offset told from a camera offset (the cheap observation pair; candidates restricted to the
 pair so it fits in CI).
@@ -16,48 +17,19 @@ Magnitudes are drawn (seeded) from the upper 40 % of each effect's realistic ran
 
 import json
 
-import numpy as np
 import pytest
+from blind_cases import candidate as _candidate
+from blind_cases import record
+from blind_cases import truth as _truth
 
 from liquidtwin.cli import main as cli_main
-from liquidtwin.discrepancy import Options, analyse
-from liquidtwin.generate import generate
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")
-
-#: (planted effect or None, seed): quick pour_hold, cup 90 % full, target drawn by the seed.
-CASES = {"none": (None, 7), "time_offset": ("time_offset", 9)}
-
-
-def upper_range_value(name: str, seed: int) -> float:
-    """A magnitude in the upper 40 % of one of the effect's realistic ranges (sign by the seed)."""
-    from liquidtwin.generate.effects import EFFECTS
-    rng = np.random.default_rng([seed, 6])
-    ranges = EFFECTS[name].ranges
-    lo, hi = ranges[int(rng.integers(len(ranges)))]
-    far, near = (lo, hi) if abs(lo) > abs(hi) else (hi, lo)        # the larger magnitude end
-    return float(far + rng.uniform(0.0, 0.4) * (near - far))
 
 
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory):
-    d = tmp_path_factory.mktemp("blind")
-    out = {}
-    for name, (effect, seed) in CASES.items():
-        path = d / f"{name}.mcap"
-        effects = [(effect, upper_range_value(effect, seed))] if effect else []
-        generate("pour_hold", path, effects=effects, seed=seed, quick=True, choices={"source": "cup", "fraction": 0.9})
-        out[name] = path
-    return out
-
-
-def _truth(path):
-    """The sidecar — read only after the analysis, to score it."""
-    return json.loads(path.with_suffix(".truth.json").read_text())["effect"]
-
-
-def _candidate(report, name):
-    return next(c for c in report["candidates"] if c["name"] == name)
+    return {"none": record("none", tmp_path_factory.mktemp("blind"))}
 
 
 def test_nothing_hidden_is_none_and_the_cli_writes_the_report(recordings, tmp_path):
@@ -81,21 +53,3 @@ def test_nothing_hidden_is_none_and_the_cli_writes_the_report(recordings, tmp_pa
     for f in ("report.md", "iou_over_time.png", "residual_maps.png", "candidates.png"):
         assert (out / f).stat().st_size > 1000
     assert "Decision: `none`" in (out / "report.md").read_text()
-
-
-def _check(path, candidates, report):
-    truth = _truth(path)
-    assert report["decision"] == truth["name"], (report["decision"], truth,
-                                                 [(c["name"], c["heldout_gain"], c.get("null_gains"))
-                                                  for c in report["candidates"]])
-    c = _candidate(report, truth["name"])
-    assert c["heldout_gain"]["ci95"][0] > 0
-    assert report["extended"]["heldout_loss"] < report["baseline"]["heldout_loss"]
-    return truth, c
-
-
-def test_time_offset_is_told_from_camera_offset(recordings):
-    path = recordings["time_offset"]
-    report = analyse([path], options=Options(candidates=("time_offset", "camera_offset"), top=2))
-    truth, c = _check(path, ("time_offset", "camera_offset"), report)
-    assert abs(c["value"] - truth["value"]) <= 0.25 * abs(truth["value"])

@@ -22,6 +22,13 @@ import torch
 
 from ..sim.sdf import quat_to_matrix
 
+
+def _floats(values) -> list:
+    """An array-like (list, protobuf field, numpy array — possibly a read-only view of a
+    message buffer — or tensor) copied to Python lists, so no read-only buffer is wrapped."""
+    return values.tolist() if hasattr(values, "tolist") else list(values)
+
+
 DISTORTION_MODEL = "plumb_bob"
 _QUAT_NORM_TOL = 1e-2  # |‖q‖ − 1| allowed in a camera pose (then normalised on use)
 
@@ -104,7 +111,7 @@ class Camera:
                              f"got fx={self.fx}, fy={self.fy}")
         pose = self.pose
         if not isinstance(pose, torch.Tensor):
-            pose = torch.as_tensor(pose, dtype=torch.float64)
+            pose = torch.tensor(_floats(pose), dtype=torch.float64)
         if not pose.is_floating_point():
             pose = pose.to(torch.float64)
         if pose.shape != (7,):
@@ -177,7 +184,7 @@ class Camera:
                          name: str = "camera") -> "Camera":
         """From ROS/Foxglove calibration fields: K (9,) or (3, 3) row-major intrinsics (zero
         skew), D plumb bob (5,) (or (4,) or empty), image size px, pose (7,) camera → world."""
-        K = torch.as_tensor(K, dtype=torch.float64).reshape(-1)
+        K = torch.tensor(_floats(K), dtype=torch.float64).reshape(-1)
         if K.numel() != 9:
             raise ValueError(f"from_calibration: K must have 9 entries (3x3 row-major), "
                              f"got {K.numel()}")
@@ -186,7 +193,7 @@ class Camera:
         if abs(float(K[1])) > 1e-9 or K[[3, 6, 7]].abs().max() > 0 or float(K[8]) != 1:
             raise ValueError(f"from_calibration: K must be [fx 0 cx; 0 fy cy; 0 0 1] (no skew), "
                              f"got {K.tolist()}")
-        D = torch.as_tensor(D, dtype=torch.float64).reshape(-1)
+        D = torch.tensor(_floats(D), dtype=torch.float64).reshape(-1)
         if D.numel() == 0:
             D = torch.zeros(5, dtype=torch.float64)
         return cls(width, height, float(K[0]), float(K[4]), float(K[2]), float(K[5]), pose, D, name)
