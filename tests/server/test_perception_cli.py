@@ -64,3 +64,50 @@ def test_evaluate_perception_end_to_end_on_a_tiny_dataset(tmp_path, capsys):
     assert (out / "pr_curves.png").stat().st_size > 0 and (out / "detections.png").stat().st_size > 0
     with pytest.raises(SystemExit, match="KIND/INPUT/FUSION"):
         main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--models", "unet/rgb/early"])
+
+
+def test_calibration_split_resumes_the_dataset_and_sets_the_threshold(tmp_path, capsys):
+    """`perception data --calib` adds held-out pours of the training containers without
+    regenerating the others; `train` and `calibrate` pick the threshold there, and it is the
+    F1-best one of a brute-force sweep over the calibration frames."""
+    from liquidtwin.perception.data import TRAIN, load_split
+    from liquidtwin.perception.train import detect, encode_clips
+    from liquidtwin.perception.weights import load_model
+    data = tmp_path / "data"
+    args = ["perception", "data", "--out", str(data), "--train", "1", "--test", "1", "--no-progress"]
+    assert main([*args, "--calib", "0"]) == 0
+    first = json.loads((data / "dataset.json").read_text())
+    stamp = (data / "train" / "000.mcap").stat().st_mtime_ns
+    assert main([*args, "--calib", "1"]) == 0
+    second = json.loads((data / "dataset.json").read_text())
+    assert second["train"] == first["train"] and second["test"] == first["test"]
+    assert (data / "train" / "000.mcap").stat().st_mtime_ns == stamp          # kept, not regenerated
+    (cal,) = second["calib"]
+    assert cal["source"] in TRAIN["source"] and cal["target"] in TRAIN["target"] and cal["seed"] != first["train"][0]["seed"]
+
+    model = tmp_path / "fcn.pt"
+    assert main(["perception", "train", "--data", str(data), "--kind", "fcn", "--crop-iterations", "3",
+                 "--full-iterations", "2", "--out", str(model), "--no-progress"]) == 0
+    net, meta = load_model(model)
+    assert meta["threshold_from"] == {"split": "calib", "pours": 1}
+    clips = load_split(data, "calib")
+    probs = np.concatenate([detect(net, x) for x in encode_clips(clips, meta["input_type"])]).ravel()
+    truth = np.concatenate([c.masks for c in clips]).ravel()
+
+    def f1(t):
+        tp = np.count_nonzero((probs >= t) & truth)
+        return 2 * tp / max(np.count_nonzero(probs >= t) + np.count_nonzero(truth), 1)
+    brute = max(f1(t) for t in np.linspace(0, 1, 201))
+    assert f1(meta["threshold"]) >= brute - 0.01
+
+    capsys.readouterr()
+    assert main(["perception", "calibrate", str(model), "--data", str(data), "--out", str(tmp_path / "c.pt")]) == 0
+    assert "F1-best on 1 calibration pours" in capsys.readouterr().out
+    _, meta2 = load_model(tmp_path / "c.pt")
+    assert meta2["threshold"] == pytest.approx(meta["threshold"]) and meta2["threshold_from"]["pours"] == 1
+
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    (bare / "dataset.json").write_text(json.dumps({**first, "calib": []}))
+    with pytest.raises(SystemExit, match="no calibration pours"):
+        main(["perception", "calibrate", str(model), "--data", str(bare)])

@@ -2,8 +2,10 @@
 look at a recording, and the thermal → colour registration.
 
 ``data`` generates the RGB pours (perception.data); ``train`` trains one detector on its
-training split, picks the F1-best threshold on that split, scores train and unseen-container
-test AUC and writes a model file (the shipped one is ``server/src/liquidtwin/data/detector.pt``,
+training split, picks the F1-best threshold on the calibration split (held-out pours of the
+training containers; the training split when the dataset has none), scores train and
+unseen-container test AUC and writes a model file; ``calibrate`` re-picks a model's threshold
+on a dataset's calibration split (the shipped one is ``server/src/liquidtwin/data/detector.pt``,
 re-made by the command in data/README.md); ``detect`` runs a model over a recording's
 images and prints AUC against its masks (when it has them).
 """
@@ -27,6 +29,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     d.add_argument("--out", type=Path, required=True, metavar="DIR")
     d.add_argument("--train", type=int, default=12, help="training pours (default: %(default)s)")
     d.add_argument("--test", type=int, default=4, help="test pours (default: %(default)s)")
+    d.add_argument("--calib", type=int, default=3,
+                   help="calibration pours: training containers, fresh seeds; the threshold is chosen there "
+                        "(default: %(default)s)")
     d.add_argument("--seed", type=int, default=0, help="(default: %(default)s)")
     d.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     t = sub.add_parser("train", help="train one detector and write its model file",
@@ -43,6 +48,13 @@ def configure(p: argparse.ArgumentParser) -> None:
     t.add_argument("--seed", type=int, default=0, help="(default: %(default)s)")
     t.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     t.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    c = sub.add_parser("calibrate", help="choose a detector's mask threshold on a dataset's calibration pours",
+                       description="set MODEL's mask threshold to the F1-best (0 px) on DATA's calibration split "
+                                   "(pours of the training containers the detector was not trained on); "
+                                   "weights unchanged")
+    c.add_argument("model", type=Path, metavar="MODEL.pt")
+    c.add_argument("--data", type=Path, required=True, metavar="DIR", help="a dataset with a calib split")
+    c.add_argument("--out", type=Path, default=None, metavar="MODEL.pt", help="write here (default: over MODEL)")
     g = sub.add_parser("register", help="thermal → colour affine map from heated-chessboard image pairs",
                        description="fit the thermal → colour affine map from one or more heated-chessboard pairs "
                                    "(findChessboardCorners in both, least squares); prints it and the RMS")
@@ -70,11 +82,15 @@ def best_threshold(probs, masks) -> float:
 def run(args: argparse.Namespace) -> int:
     if args.action == "data":
         from .data import make_dataset
-        m = make_dataset(args.out, train=args.train, test=args.test, seed=args.seed, progress=not args.no_progress)
-        print(f"{len(m['train'])} training + {len(m['test'])} test pours in {args.out}")
+        m = make_dataset(args.out, train=args.train, test=args.test, calib=args.calib, seed=args.seed,
+                         progress=not args.no_progress)
+        print(f"{len(m['train'])} training + {len(m['test'])} test + {len(m['calib'])} calibration pours "
+              f"in {args.out}")
         return 0
     if args.action == "train":
         return _train(args)
+    if args.action == "calibrate":
+        return _calibrate(args)
     if args.action == "register":
         return _register(args)
     return _detect(args)
@@ -132,21 +148,58 @@ def _train(args) -> int:
     init = load_model(args.init)[0] if args.init else None
     net, info = train(train_clips, cfg, progress=not args.no_progress, init=init)
     probs = [detect(net, x) for x in encode_clips(train_clips, cfg.input_type)]
-    thr = best_threshold(probs, [c.masks for c in train_clips])
+    calib = load_split(args.data, "calib")
+    thr_from = {"split": "calib" if calib else "train", "pours": len(calib or train_clips)}
+    thr = (best_threshold([detect(net, x) for x in encode_clips(calib, cfg.input_type)], [c.masks for c in calib])
+           if calib else best_threshold(probs, [c.masks for c in train_clips]))
     auc = {"train": scores_auc(probs, train_clips),
            "test": scores_auc([detect(net, x) for x in encode_clips(test_clips, cfg.input_type)], test_clips)}
     manifest = json.loads((args.data / "dataset.json").read_text())
-    meta = {"size": list(SIZE), "threshold": thr, "trained": info["config"], "train_wall_s": info["wall_s"],
+    meta = {"size": list(SIZE), "threshold": thr, "threshold_from": thr_from, "trained": info["config"], "train_wall_s": info["wall_s"],
             "dataset": {"seed": manifest["seed"], "train": len(manifest["train"]), "test": len(manifest["test"])},
             "auc": auc, "parameters": parameter_count(net),
             "init": None if args.init is None else args.init.name, "made": time.strftime("%Y-%m-%d")}
     save_model(args.out, net, meta)
     size_kb = args.out.stat().st_size / 1024
     print(f"{cfg.kind}/{cfg.input_type}/{cfg.fusion}: {parameter_count(net)} parameters, {size_kb:.0f} KB, "
-          f"trained {info['wall_s']:.0f} s; threshold {thr:.2f}")
+          f"trained {info['wall_s']:.0f} s; threshold {thr:.2f} (F1-best on {thr_from['pours']} "
+          f"{thr_from['split']} pours)")
     for split in ("train", "test"):
         print(f"  {split:<5} AUC " + "  ".join(f"{k} px {100 * v:.1f}%" for k, v in auc[split].items()))
     print(f"wrote {args.out}")
+    return 0
+
+
+def _calibrate(args) -> int:
+    import numpy as np
+
+    from .data import load_split
+    from .metrics import pr_curve
+    from .train import detect, encode_clips
+    from .weights import load_model, save_model
+    net, meta = load_model(args.model)
+    clips = load_split(args.data, "calib")
+    if not clips:
+        raise SystemExit(f"{args.data} has no calibration pours; add them with "
+                         f"`liquidtwin perception data --out {args.data} --calib 3` (same --seed as the dataset)")
+    probs = [detect(net, x) for x in encode_clips(clips, meta["input_type"])]
+    masks = [c.masks for c in clips]
+    thr = best_threshold(probs, masks)
+    p, r, t = pr_curve(np.concatenate(probs), np.concatenate(masks), 0)
+
+    def iou(threshold):                 # pooled pixel IOU at a threshold: F1 / (2 − F1)
+        k = min(int(np.searchsorted(t, threshold)), len(t) - 1)
+        f1 = 2 * p[k] * r[k] / max(p[k] + r[k], 1e-12)
+        return f1 / (2 - f1)
+    old = float(meta.get("threshold", 0.5))
+    meta = {**meta, "threshold": thr, "threshold_from": {"split": "calib", "pours": len(clips),
+                                                         "dataset_seed": json.loads(
+                                                             (args.data / "dataset.json").read_text())["seed"]}}
+    out = args.out or args.model
+    save_model(out, net, meta)
+    print(f"threshold {old:.2f} → {thr:.2f} (F1-best on {len(clips)} calibration pours); "
+          f"pixel IOU there {iou(old):.3f} → {iou(thr):.3f}")
+    print(f"wrote {out}")
     return 0
 
 
