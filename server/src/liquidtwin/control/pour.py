@@ -73,20 +73,85 @@ class PourRun:
     update_s: float
 
 
-def _return_rate(q: torch.Tensor, dt: float) -> torch.Tensor:
+def _return_rate(q: torch.Tensor, dt: float, max_rate) -> torch.Tensor:
     """The return manoeuvre's control: back towards upright at the rate limit, no overshoot."""
-    return -torch.clamp(q / dt, -MAX_RATE, MAX_RATE)
+    max_rate = torch.as_tensor(max_rate, dtype=q.dtype)
+    return -torch.minimum(torch.maximum(q / dt, -max_rate), max_rate)
 
 
 @torch.no_grad()
 def predict_landed(model, state, q, space, dst: int, dst_obj, ml_per_particle: float) -> float:
     """ml the target holds after turning back now (max-rate return, then ``LAND_S`` s)."""
     s = state
-    steps = int(math.ceil(abs(float(q)) / (MAX_RATE * model.dt))) + int(round(LAND_S / model.dt))
+    rate = float(space.max_rate[0])
+    steps = int(math.ceil(abs(float(q)) / (rate * model.dt))) + int(round(LAND_S / model.dt))
     for _ in range(steps):
-        q = space.positions(q, _return_rate(q, model.dt)[None], model.dt)[0]
+        q = space.positions(q, _return_rate(q, model.dt, space.max_rate)[None], model.dt)[0]
         s = step(model, s, space.poses(q[None])[0].to(s.x.dtype))
     return float(held(model, s, dst, dst_obj)[0].sum()) * ml_per_particle
+
+
+class PourMPC:
+    """One pour task's MPC controller (module doc), driven one control step at a time, by
+    :func:`run_pour` (a simulated cup) or by a service session (the robot's cup).
+
+    ``update(state, q, space)`` → the control (rad/s, (1,)) to execute from the tracked
+    ``state`` with the cup at tilt ``q`` ((1,) rad); ``space`` maps tilts to scene poses from
+    *now* (a session's poses change every frame). ``done`` turns True at the switch: from
+    then on the cup returns upright at the rate limit (``anticipate``) or by MPC on the
+    squared angle (the thesis). ``target_base_ml``: what the target held when the task began."""
+
+    def __init__(self, model, space: ControlSpace, lip: torch.Tensor, src: int, dst: int, src_obj, dst_obj,
+                 target_ml: float, ml_per_particle: float, *, state, target_base_ml: float = 0.0,
+                 horizon: int = 10, step_size: float = 0.5, anticipate: bool = True):
+        self.model, self.src, self.dst, self.src_obj, self.dst_obj = model, src, dst, src_obj, dst_obj
+        self.target_ml, self.ml, self.base_ml, self.anticipate = float(target_ml), float(ml_per_particle), \
+            float(target_base_ml), bool(anticipate)
+        self.lip = torch.as_tensor(lip, dtype=state.x.dtype)
+        in_cup = held(model, state, src, src_obj)[0]
+        self.cup0 = int(in_cup.sum())
+        self.done, self.predicted, self.updates = False, 0.0, 0
+        self.ids = torch.as_tensor(np.flatnonzero(in_cup))
+        self.mpc = MPC(model, space, self._loss, horizon=horizon, step_size=step_size)
+
+    def _loss(self, s, k, q):
+        if not self.done:
+            x, _ = s.by_id()
+            return (x[self.ids] - self.lip).norm(dim=1).mean()
+        return (q ** 2).sum()
+
+    def update(self, state, q: torch.Tensor, space: ControlSpace | None = None) -> torch.Tensor:
+        if space is not None:
+            self.mpc.space = space
+        space = self.mpc.space
+        held_now = held(self.model, state, self.src, self.src_obj)[0]
+        if not self.done:
+            if self.anticipate:
+                near = self.predicted >= NEAR * self.target_ml          # close: check every update
+                if float(q[0]) > MIN_CHECK_TILT and (near or self.updates % CHECK_EVERY == 0):
+                    self.predicted = predict_landed(self.model, state, q[0], space, self.dst, self.dst_obj,
+                                                    self.ml) - self.base_ml
+                switch = self.predicted >= self.target_ml
+            else:
+                switch = (self.cup0 - int(held_now.sum())) * self.ml >= self.target_ml
+            if switch:
+                self.done = True
+                self.mpc.plan = torch.zeros_like(self.mpc.plan)
+            else:
+                self.ids = torch.as_tensor(np.flatnonzero(held_now))
+        self.updates += 1
+        if not self.done or not self.anticipate:
+            return self.mpc.update(state, q)[0]
+        return _return_rate(q, self.model.dt, space.max_rate)
+
+    def state_dict(self) -> dict:
+        """What changes (tensors and plain numbers; torch.load(weights_only=True))."""
+        return {"done": self.done, "predicted": float(self.predicted), "updates": int(self.updates),
+                "ids": self.ids.clone(), "plan": self.mpc.plan.clone()}
+
+    def load_state_dict(self, d: dict) -> None:
+        self.done, self.predicted, self.updates = bool(d["done"]), float(d["predicted"]), int(d["updates"])
+        self.ids, self.mpc.plan = d["ids"].clone(), d["plan"].clone()
 
 
 def run_pour(setup, model, state, target_ml: float, ml_per_particle: float, *, max_seconds: float = 6.0,
@@ -95,51 +160,28 @@ def run_pour(setup, model, state, target_ml: float, ml_per_particle: float, *, m
     src, dst = setup.index("source"), setup.index("target")
     src_obj, dst_obj = setup.objects[src].model, setup.objects[dst].model
     n = int(state.x.shape[0])
-    in_cup = held(model, state, src, src_obj)[0]
-    have = float(in_cup.sum()) * ml_per_particle
+    have = float(held(model, state, src, src_obj)[0].sum()) * ml_per_particle
     if not (math.isfinite(target_ml) and 0 < target_ml < have):
         raise ControlError(f"cannot pour {target_ml} ml: the cup holds {have:.1f} ml")
     space, lip = lip_space(setup)
-    lip = lip.to(state.x.dtype)
-    phase = {"pour": True, "ids": torch.as_tensor(np.flatnonzero(in_cup))}
-
-    def loss(s, k, q):
-        if phase["pour"]:
-            x, _ = s.by_id()
-            return (x[phase["ids"]] - lip).norm(dim=1).mean()
-        return (q ** 2).sum()
-
-    mpc = MPC(model, space, loss, horizon=horizon, step_size=step_size)
+    ctrl = PourMPC(model, space, lip, src, dst, src_obj, dst_obj, target_ml, ml_per_particle, state=state,
+                   horizon=horizon, step_size=step_size, anticipate=anticipate)
     q = torch.zeros(1, dtype=torch.float64)
     angles, switched = [], None
     steps = int(round(max_seconds / model.dt))
     t0 = time.perf_counter()
     bar = tqdm(range(steps), desc=f"pour {target_ml:g} ml", unit="step", disable=not progress, leave=False)
     for i in bar:
-        held_now = held(model, state, src, src_obj)[0]
-        left = (n - int(held_now.sum())) * ml_per_particle
-        if phase["pour"]:
-            if anticipate:
-                near = phase.get("predicted", 0.0) >= NEAR * target_ml     # close: check every step
-                if float(q) > MIN_CHECK_TILT and (near or i % CHECK_EVERY == 0):
-                    phase["predicted"] = predict_landed(model, state, q, space, dst, dst_obj, ml_per_particle)
-                done = phase.get("predicted", 0.0) >= target_ml
-            else:
-                done = left >= target_ml
-            if done:
-                phase["pour"], switched = False, i * model.dt
-                mpc.plan = torch.zeros_like(mpc.plan)
-            else:
-                phase["ids"] = torch.as_tensor(np.flatnonzero(held_now))
-        if not phase["pour"] and abs(float(q)) < UPRIGHT:
+        if ctrl.done and abs(float(q)) < UPRIGHT:
+            held_now = held(model, state, src, src_obj)[0]
             in_dst = held(model, state, dst, dst_obj)[0]
             falling = ~(held_now | in_dst) & (state.x[:, 1].detach().numpy() > 0.005)
             if not falling.any():
                 break
-        if phase["pour"] or not anticipate:
-            u, _ = mpc.update(state, q)
-        else:
-            u = _return_rate(q, model.dt)
+        was_done = ctrl.done
+        u = ctrl.update(state, q)
+        if ctrl.done and not was_done:
+            switched = i * model.dt
         q = space.positions(q, u[None], model.dt)[0]
         with torch.no_grad():
             state = step(model, state, space.poses(q[None])[0].to(state.x.dtype))
