@@ -202,7 +202,8 @@ def test_tasks_and_control(rec):
              (task(volume_ml=-1), pb.Error.BAD_REQUEST), (task(target="source"), pb.Error.BAD_REQUEST),
              (task(target="table"), pb.Error.BAD_REQUEST), (task(max_angle_rad=4.0), pb.Error.BAD_REQUEST),
              (task(max_rate_rad_s=-1.0), pb.Error.BAD_REQUEST),
-             (pb.Task(pour=task().pour, controller="mpc"), pb.Error.INFEASIBLE)]
+             (pb.Task(pour=task().pour, controller="lqr"), pb.Error.BAD_REQUEST),
+             (pb.Task(pour=task(volume_ml=held_ml + 1).pour, controller="mpc"), pb.Error.INFEASIBLE)]
     for t, code in cases:
         with pytest.raises(EngineError) as err:
             eng.set_task(t)
@@ -211,6 +212,12 @@ def test_tasks_and_control(rec):
     c = eng.control()
     assert c.object == "source" and c.controller == "pid" and not c.done
     assert 0.0 <= c.tilt_angle_rad <= 2.0 and 0 < c.tilt_rate_rad_s <= 1.0 and c.remaining_ml == pytest.approx(10.0)
+    # The pour axis: horizontal, through the source's rim on the target's side (the pan is at
+    # the origin, the cup at x ≈ +0.073 m: the rim point at x ≈ 0.033 m, 0.11 m above the cup's base).
+    src = np.asarray(rec.spec.objects[0].initial_pose[:3])
+    axis, point = np.asarray(c.axis_direction), np.asarray(c.axis_point_m)
+    assert np.allclose(axis, [0, 0, 1], atol=0.05) and point[0] == pytest.approx(src[0] - 0.04, abs=0.005)
+    assert point[1] == pytest.approx(src[1] + 0.11, abs=0.005)
     eng.set_task(pb.Task())
     assert eng.control() is None
 

@@ -130,12 +130,13 @@ def test_frames_get_particles_volumes_metrics_and_overlay(srv):
     peer.session_rpc(sid, "close")
 
 
-def test_set_task_publishes_control(srv):
+@pytest.mark.parametrize("controller", ["pid", "mpc"])
+def test_set_task_publishes_control(srv, controller):
     _, peer = srv
-    sid = "rpc-task"
+    sid = f"rpc-task-{controller}"
     peer.create(sid, pour_spec())
     peer.watch(sid)
-    task = pb.Task(controller="pid")
+    task = pb.Task(controller=controller)
     task.pour.source, task.pour.target, task.pour.volume_ml = "src", "dst", 5.0
     task.pour.max_angle_rad, task.pour.max_rate_rad_s = 2.0, 1.0
     st = peer.session_rpc(sid, "set_task", pb.SetTaskRequest(header=header(sid), task=task))
@@ -143,8 +144,10 @@ def test_set_task_publishes_control(srv):
     for i in range(3):
         peer.send(sid, "poses", poses_msg({"src": UP}), T0 + i * DT_NS)
         ctl = peer.wait_output(sid, "control", T0 + i * DT_NS)
-        assert ctl.object == "src" and ctl.header.stamp_ns == T0 + i * DT_NS and ctl.controller == "pid"
-        assert 0 <= ctl.remaining_ml <= 5.0 and not ctl.done
+        assert ctl.object == "src" and ctl.header.stamp_ns == T0 + i * DT_NS and ctl.controller == controller
+        assert 0 <= ctl.remaining_ml <= 5.0 and not ctl.done and 0 <= ctl.tilt_angle_rad <= 2.0
+        assert len(ctl.axis_point_m) == 3 and ctl.axis_direction[1] == 0.0
+        assert abs(sum(a * a for a in ctl.axis_direction) - 1.0) < 1e-9
     cancel = peer.session_rpc(sid, "set_task", pb.SetTaskRequest(header=header(sid), task=pb.Task()))
     assert not cancel.HasField("task")
     peer.send(sid, "poses", poses_msg({"src": UP}), T0 + 10 * DT_NS)

@@ -249,7 +249,7 @@ class Task(_message.Message):
     def __init__(self, pour: _Optional[_Union[Task.PourToVolume, _Mapping]] = ..., controller: _Optional[str] = ...) -> None: ...
 
 class Control(_message.Message):
-    __slots__ = ("header", "object", "tilt_angle_rad", "tilt_rate_rad_s", "achieved_ml", "remaining_ml", "done", "controller")
+    __slots__ = ("header", "object", "tilt_angle_rad", "tilt_rate_rad_s", "achieved_ml", "remaining_ml", "done", "controller", "axis_point_m", "axis_direction")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     OBJECT_FIELD_NUMBER: _ClassVar[int]
     TILT_ANGLE_RAD_FIELD_NUMBER: _ClassVar[int]
@@ -258,6 +258,8 @@ class Control(_message.Message):
     REMAINING_ML_FIELD_NUMBER: _ClassVar[int]
     DONE_FIELD_NUMBER: _ClassVar[int]
     CONTROLLER_FIELD_NUMBER: _ClassVar[int]
+    AXIS_POINT_M_FIELD_NUMBER: _ClassVar[int]
+    AXIS_DIRECTION_FIELD_NUMBER: _ClassVar[int]
     header: Header
     object: str
     tilt_angle_rad: float
@@ -266,7 +268,9 @@ class Control(_message.Message):
     remaining_ml: float
     done: bool
     controller: str
-    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., object: _Optional[str] = ..., tilt_angle_rad: _Optional[float] = ..., tilt_rate_rad_s: _Optional[float] = ..., achieved_ml: _Optional[float] = ..., remaining_ml: _Optional[float] = ..., done: _Optional[bool] = ..., controller: _Optional[str] = ...) -> None: ...
+    axis_point_m: _containers.RepeatedScalarFieldContainer[float]
+    axis_direction: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., object: _Optional[str] = ..., tilt_angle_rad: _Optional[float] = ..., tilt_rate_rad_s: _Optional[float] = ..., achieved_ml: _Optional[float] = ..., remaining_ml: _Optional[float] = ..., done: _Optional[bool] = ..., controller: _Optional[str] = ..., axis_point_m: _Optional[_Iterable[float]] = ..., axis_direction: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class OverlayInfo(_message.Message):
     __slots__ = ("camera", "observed_only_rgb", "model_only_rgb", "overlap_rgb", "observed_px", "model_px", "overlap_px")

@@ -87,7 +87,7 @@ class MPC:
     def horizon_loss(self, state: FluidState, q0: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Σ_k loss(state after planned step k) for controls u (T, D) from positions q0."""
         q = self.space.positions(q0, u, self.model.dt)
-        poses = self.space.poses(q).to(state.x.dtype)
+        poses = self.space.poses(q).to(state.x)
         s = FluidState(state.x.detach(), state.v.detach(), state.ids, state.poses, state.t)
         total = 0.0
         for k in range(u.shape[0]):

@@ -8,10 +8,13 @@ that makes them flow); then the squared tilt angle (back upright).
 
 When to switch: the thesis switches once the asked amount has left the cup, so everything
 that still flows while the cup turns back is extra. With ``anticipate`` (default) the model
-predicts it: every ``CHECK_EVERY`` steps (every step once a prediction reached ``NEAR`` of
-the ask; from a tilt of ``MIN_CHECK_TILT`` on) a no-gradient rollout turns the cup back at the rate limit and lets the stream land; the
-switch comes at the first check whose predicted amount in the target reaches the ask. The
-return is then that same max-rate manoeuvre (what was predicted is what is done).
+predicts it: every ``CHECK_EVERY`` steps (every update once a prediction reached ``NEAR`` of
+the ask; from a tilt of ``MIN_CHECK_TILT`` on) a no-gradient rollout keeps the planned
+control until the next update, then turns the cup back at the rate limit and lets the stream
+land. Once that reaches the ask, a second rollout turns back now, and the controller switches
+now or at the next update, whichever lands closer to the ask (an update is one model step
+here, one camera frame in a session: several steps). The return is that same max-rate
+manoeuvre (what was predicted is what is done).
 """
 
 from __future__ import annotations
@@ -80,14 +83,18 @@ def _return_rate(q: torch.Tensor, dt: float, max_rate) -> torch.Tensor:
 
 
 @torch.no_grad()
-def predict_landed(model, state, q, space, dst: int, dst_obj, ml_per_particle: float) -> float:
-    """ml the target holds after turning back now (max-rate return, then ``LAND_S`` s)."""
+def predict_landed(model, state, q, space, dst: int, dst_obj, ml_per_particle: float, hold=None) -> float:
+    """ml the target holds after turning back (max-rate return, then ``LAND_S`` s): now, or
+    with ``hold`` = (u (1,), k) after k more steps at the control u (the next update's turn)."""
     s = state
+    for _ in range(hold[1] if hold is not None else 0):
+        q = space.positions(q, hold[0][None], model.dt)[0]
+        s = step(model, s, space.poses(q[None])[0].to(s.x))
     rate = float(space.max_rate[0])
     steps = int(math.ceil(abs(float(q)) / (rate * model.dt))) + int(round(LAND_S / model.dt))
     for _ in range(steps):
         q = space.positions(q, _return_rate(q, model.dt, space.max_rate)[None], model.dt)[0]
-        s = step(model, s, space.poses(q[None])[0].to(s.x.dtype))
+        s = step(model, s, space.poses(q[None])[0].to(s.x))
     return float(held(model, s, dst, dst_obj)[0].sum()) * ml_per_particle
 
 
@@ -95,22 +102,25 @@ class PourMPC:
     """One pour task's MPC controller (module doc), driven one control step at a time, by
     :func:`run_pour` (a simulated cup) or by a service session (the robot's cup).
 
-    ``update(state, q, space)`` → the control (rad/s, (1,)) to execute from the tracked
-    ``state`` with the cup at tilt ``q`` ((1,) rad); ``space`` maps tilts to scene poses from
-    *now* (a session's poses change every frame). ``done`` turns True at the switch: from
+    ``update(state, q, space, lip, elapsed)`` → the control (rad/s, (1,)) to execute from the
+    tracked ``state`` with the cup at tilt ``q`` ((1,) rad); ``space`` maps tilts to scene
+    poses from *now* and ``lip`` is where the pour lip is now (a session's poses change every
+    frame); ``elapsed``: model steps since the previous update (a session updates once per
+    frame: the plan moves on by that many steps). ``done`` turns True at the switch: from
     then on the cup returns upright at the rate limit (``anticipate``) or by MPC on the
-    squared angle (the thesis). ``target_base_ml``: what the target held when the task began."""
+    squared angle (the thesis). Amounts are counted from what the target holds in ``state``
+    when the controller is made (``base_ml``)."""
 
     def __init__(self, model, space: ControlSpace, lip: torch.Tensor, src: int, dst: int, src_obj, dst_obj,
-                 target_ml: float, ml_per_particle: float, *, state, target_base_ml: float = 0.0,
+                 target_ml: float, ml_per_particle: float, *, state,
                  horizon: int = 10, step_size: float = 0.5, anticipate: bool = True):
         self.model, self.src, self.dst, self.src_obj, self.dst_obj = model, src, dst, src_obj, dst_obj
-        self.target_ml, self.ml, self.base_ml, self.anticipate = float(target_ml), float(ml_per_particle), \
-            float(target_base_ml), bool(anticipate)
-        self.lip = torch.as_tensor(lip, dtype=state.x.dtype)
+        self.target_ml, self.ml, self.anticipate = float(target_ml), float(ml_per_particle), bool(anticipate)
+        self.base_ml = float(held(model, state, dst, dst_obj)[0].sum()) * self.ml
+        self.lip = torch.as_tensor(lip).to(state.x)
         in_cup = held(model, state, src, src_obj)[0]
         self.cup0 = int(in_cup.sum())
-        self.done, self.predicted, self.updates = False, 0.0, 0
+        self.done, self.predicted, self.updates, self.steps = False, 0.0, 0, 0     # steps: model steps run
         self.ids = torch.as_tensor(np.flatnonzero(in_cup))
         self.mpc = MPC(model, space, self._loss, horizon=horizon, step_size=step_size)
 
@@ -120,37 +130,55 @@ class PourMPC:
             return (x[self.ids] - self.lip).norm(dim=1).mean()
         return (q ** 2).sum()
 
-    def update(self, state, q: torch.Tensor, space: ControlSpace | None = None) -> torch.Tensor:
+    def update(self, state, q: torch.Tensor, space: ControlSpace | None = None, lip=None,
+               elapsed: int = 1) -> torch.Tensor:
         if space is not None:
             self.mpc.space = space
+        if lip is not None:
+            self.lip = torch.as_tensor(lip).to(state.x)
+        if elapsed > 1:                      # the plan's first elapsed-1 steps are past (MPC shifted one)
+            k = min(int(elapsed) - 1, self.mpc.plan.shape[0] - 1)
+            self.mpc.plan = torch.cat([self.mpc.plan[k:], self.mpc.plan[-1:].expand(k, -1)])
         space = self.mpc.space
+        prev = self.steps
+        if self.updates:
+            self.steps += int(elapsed)
+        if self.done:
+            self.updates += 1
+            return self.mpc.update(state, q)[0] if not self.anticipate else \
+                _return_rate(q, self.model.dt, space.max_rate)
         held_now = held(self.model, state, self.src, self.src_obj)[0]
-        if not self.done:
-            if self.anticipate:
-                near = self.predicted >= NEAR * self.target_ml          # close: check every update
-                if float(q[0]) > MIN_CHECK_TILT and (near or self.updates % CHECK_EVERY == 0):
-                    self.predicted = predict_landed(self.model, state, q[0], space, self.dst, self.dst_obj,
-                                                    self.ml) - self.base_ml
-                switch = self.predicted >= self.target_ml
-            else:
-                switch = (self.cup0 - int(held_now.sum())) * self.ml >= self.target_ml
-            if switch:
-                self.done = True
-                self.mpc.plan = torch.zeros_like(self.mpc.plan)
-            else:
-                self.ids = torch.as_tensor(np.flatnonzero(held_now))
+        self.ids = torch.as_tensor(np.flatnonzero(held_now))
+        u = self.mpc.update(state, q)[0]              # what runs until the next update, unless we switch
+        if self.anticipate:
+            near = self.predicted >= NEAR * self.target_ml          # close: check every update
+            due = self.updates == 0 or self.steps // CHECK_EVERY > prev // CHECK_EVERY
+            switch = False
+            if float(q[0]) > MIN_CHECK_TILT and (near or due):
+                ask = lambda hold=None: predict_landed(self.model, state, q[0], space, self.dst,  # noqa: E731
+                                                       self.dst_obj, self.ml, hold) - self.base_ml
+                self.predicted = ask((u, int(elapsed)))             # turning back at the next update
+                if self.predicted >= self.target_ml:                # now or next: whichever lands closer
+                    switch = self.predicted - self.target_ml > self.target_ml - ask()
+        else:
+            switch = (self.cup0 - int(held_now.sum())) * self.ml >= self.target_ml
         self.updates += 1
-        if not self.done or not self.anticipate:
-            return self.mpc.update(state, q)[0]
-        return _return_rate(q, self.model.dt, space.max_rate)
+        if not switch:
+            return u
+        self.done = True
+        self.mpc.plan = torch.zeros_like(self.mpc.plan)
+        return self.mpc.update(state, q)[0] if not self.anticipate else _return_rate(q, self.model.dt, space.max_rate)
 
     def state_dict(self) -> dict:
         """What changes (tensors and plain numbers; torch.load(weights_only=True))."""
         return {"done": self.done, "predicted": float(self.predicted), "updates": int(self.updates),
-                "ids": self.ids.clone(), "plan": self.mpc.plan.clone()}
+                "steps": int(self.steps),
+                "base_ml": self.base_ml, "cup0": self.cup0, "ids": self.ids.clone(), "plan": self.mpc.plan.clone()}
 
     def load_state_dict(self, d: dict) -> None:
         self.done, self.predicted, self.updates = bool(d["done"]), float(d["predicted"]), int(d["updates"])
+        self.base_ml, self.cup0 = float(d["base_ml"]), int(d["cup0"])
+        self.steps = int(d["steps"])
         self.ids, self.mpc.plan = d["ids"].clone(), d["plan"].clone()
 
 

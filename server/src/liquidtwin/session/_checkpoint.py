@@ -8,9 +8,8 @@ import json
 import numpy as np
 import torch
 
-from ..control import PourPID
 from ..sim import FluidState
-from ._task import task_from_str, task_to_str
+from ._task import PourTask, task_from_str
 from .errors import BAD_REQUEST, EngineError
 
 VERSION = 1
@@ -32,9 +31,9 @@ def engine_state(engine) -> dict:
         "frame_t": float(engine._frame_t or 0.0), "frame_poses": torch.as_tensor(engine._frame_poses).clone(),
         "frames": int(engine._frames), "cameras": engine._cameras.state_dict(),
         "tracker": engine._tracker.state_dict(),
-        "task": task_to_str(engine._task) if engine._task is not None else "",
-        "task_base": float(engine._task_base), "control_frame": int(engine._control_frame),
-        "pid": engine._pid.state_dict() if engine._pid is not None else {},
+        # the task and its controller (PourTask.state_dict; "task" "" = none)
+        **(engine._pour.state_dict() if engine._pour is not None else
+           {"task": "", "task_base": 0.0, "control_frame": -1, "pid": {}}),
         # the loaded model extension (model file JSON; "" = none), its initial fill when it
         # differs from the spec's (fill_error), and the steps kept for its time offset
         "extension": json.dumps(engine._ext.as_dict()) if engine._ext.name != "none" or engine._ext.base else "",
@@ -70,10 +69,7 @@ def load_engine_state(engine, state: dict) -> None:
     engine._volumes = None
     engine._cameras.load_state_dict(state["cameras"])
     engine._tracker.load_state_dict(state["tracker"])
-    engine._task = task_from_str(state["task"]) if state["task"] else None
-    engine._task_base = float(state["task_base"])
-    engine._control_frame = int(state["control_frame"])
-    engine._pid = PourPID.from_state_dict(state["pid"]) if state["pid"] else None
+    engine._pour = PourTask.create(task_from_str(state["task"]), engine, state=state) if state["task"] else None
     engine._history.load_state_dict(state.get("history", []), dev)
 
 

@@ -1,29 +1,36 @@
-"""A session's task: checking a pour request against the scene and driving its controller."""
+"""A session's task: checking a pour request against the scene and driving its controller
+(PD baseline or MPC through the session's model)."""
 
 from __future__ import annotations
 
 import math
 
+import torch
 from google.protobuf import json_format
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..control import PourPID
+from ..control.pour import PourMPC
+from ..control.tilt import PourAxis, pour_axis, tilt_space
+from ._cameras import tilt_from_upright
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 
 #: Limits used when a task leaves them at 0: tilt up to 135° at up to 1 rad/s.
 DEFAULT_MAX_ANGLE = math.radians(135.0)
 DEFAULT_MAX_RATE = 1.0
+#: Task.controller values ("" = "pid").
+CONTROLLERS = ("", "pid", "mpc")
+#: The MPC's horizon (model steps) and normalised step (rad/s per update): bench/control_pour.py's.
+MPC_HORIZON = 10
+MPC_STEP = 0.5
 
 
-def make_controller(task: pb.Task, names, containers, volumes: dict, capacities: dict,
-                    source_tilt: float) -> PourPID:
-    """The PourPID for a pour task; EngineError (UNKNOWN_NAME, BAD_REQUEST, INFEASIBLE) if the
-    task cannot be done in this scene now. ``volumes``: ml per container now;
-    ``capacities``: ml per container to the rim; ``source_tilt``: the source's tilt, rad."""
-    if task.controller not in ("", "pid"):
-        if task.controller == "mpc":
-            raise EngineError(INFEASIBLE, "controller 'mpc' is not available in this version; use 'pid'")
-        raise EngineError(BAD_REQUEST, f"unknown controller {task.controller!r}; use 'pid'")
+def check_pour(task: pb.Task, names, containers, volumes: dict, capacities: dict) -> tuple[float, float]:
+    """(max_angle rad, max_rate rad/s) of a pour task, or EngineError (UNKNOWN_NAME,
+    BAD_REQUEST, INFEASIBLE) if the task cannot be done in this scene now. ``volumes``: ml per
+    container now; ``capacities``: ml per container to the rim."""
+    if task.controller not in CONTROLLERS:
+        raise EngineError(BAD_REQUEST, f"unknown controller {task.controller!r}; use 'pid' or 'mpc'")
     p = task.pour
     for role, name in (("source", p.source), ("target", p.target)):
         if name not in names:
@@ -47,15 +54,104 @@ def make_controller(task: pb.Task, names, containers, volumes: dict, capacities:
     if p.volume_ml > room:
         raise EngineError(INFEASIBLE, f"cannot pour {p.volume_ml:.1f} ml into {p.target!r}: it has room for "
                                       f"{max(room, 0.0):.1f} ml")
-    return PourPID(p.volume_ml, max_angle, max_rate, angle=min(source_tilt, max_angle))
+    return max_angle, max_rate
 
 
-def control_message(task: pb.Task, pid: PourPID, poured_ml: float) -> pb.Control:
-    """The Control for the controller's last update (header left to the service)."""
-    remaining = max(pid.target_ml - poured_ml, 0.0)
-    return pb.Control(object=task.pour.source, tilt_angle_rad=pid.angle, tilt_rate_rad_s=pid.rate,
-                      achieved_ml=poured_ml, remaining_ml=remaining, done=pid.done,
-                      controller=task.controller or "pid")
+class PourTask:
+    """A session's pour task and its controller: the PD baseline (:class:`PourPID`, on the
+    tracked target volume) or MPC through the session's model (:class:`PourMPC`, from the
+    tracked particles, once per frame). Both tilt the source about the same axis
+    (:mod:`liquidtwin.control.tilt`), sent with every Control. Reads the engine's state; build
+    with :meth:`create`."""
+
+    def __init__(self, task: pb.Task, axis: PourAxis, base_ml: float, max_angle: float, max_rate: float,
+                 ctrl, names):
+        self.task, self.axis, self.base_ml = task, axis, float(base_ml)
+        self.max_angle, self.max_rate, self.ctrl = float(max_angle), float(max_rate), ctrl
+        self.src, self.dst = names.index(task.pour.source), names.index(task.pour.target)
+        self.control_frame, self.last_sim_t = -1, -1.0
+        self.command = (0.0, 0.0, False)            # (angle rad, rate rad/s, done) of the last update
+
+    @property
+    def is_mpc(self) -> bool:
+        return self.task.controller == "mpc"
+
+    @classmethod
+    def create(cls, task: pb.Task, eng, *, state: dict | None = None) -> "PourTask":
+        """The task on engine ``eng`` now (EngineError if impossible, see :func:`check_pour`);
+        ``state``: a :meth:`state_dict` to continue from (checks skipped: it was accepted)."""
+        names = eng.object_names
+        if state is None:
+            vols = eng.volumes()
+            max_angle, max_rate = check_pour(task, names, eng.container_names, vols, eng._capacity)
+            base = vols[task.pour.target]
+        else:
+            limits = state if "max_angle" in state else state["pid"]     # older checkpoints: the PID's
+            max_angle, max_rate, base = limits["max_angle"], limits["max_rate"], state["task_base"]
+        src, dst = names.index(task.pour.source), names.index(task.pour.target)
+        poses = eng._frame_poses
+        if state is not None and "pivot_local" in state:
+            axis = PourAxis(state["pivot_local"].numpy(), state["axis"].numpy())
+        else:
+            axis = pour_axis(eng._scene.objects[src].mesh.vertices, poses[src], poses[dst][:3])
+        if task.controller == "mpc":
+            ctrl = PourMPC(eng._model, cls._space(eng, src, axis, max_angle, max_rate), axis.pivot_world(poses[src]),
+                           src, dst, eng._scene.objects[src], eng._scene.objects[dst], task.pour.volume_ml,
+                           eng._ml_per_particle, state=eng._state, horizon=MPC_HORIZON, step_size=MPC_STEP)
+            if state is not None:
+                ctrl.load_state_dict(state["mpc"])
+        elif state is not None and state.get("pid"):
+            ctrl = PourPID.from_state_dict(state["pid"])
+        else:
+            ctrl = PourPID(task.pour.volume_ml, max_angle, max_rate,
+                           angle=min(tilt_from_upright(poses[src]), max_angle))
+        out = cls(task, axis, base, max_angle, max_rate, ctrl, names)
+        if state is not None:
+            out.control_frame = int(state["control_frame"])
+            out.last_sim_t = float(state.get("last_sim_t", -1.0))
+            out.command = tuple(state.get("command", (0.0, 0.0, False)))
+        return out
+
+    @staticmethod
+    def _space(eng, src: int, axis: PourAxis, max_angle: float, max_rate: float):
+        pose = eng._frame_poses[src]
+        return tilt_space(eng._frame_poses, src, axis.pivot_world(pose), axis.axis, tilt_from_upright(pose),
+                          max_angle, max_rate)
+
+    def control(self, eng) -> pb.Control:
+        """The command after the engine's latest frame (computed once per frame; header left
+        to the service)."""
+        poured = eng.volumes()[self.task.pour.target] - self.base_ml
+        if self.control_frame != eng._frames:
+            self.command = self._update_mpc(eng) if self.is_mpc else self.ctrl.update(eng._sim_t, poured)
+            self.control_frame = eng._frames
+        angle, rate, done = self.command
+        return pb.Control(object=self.task.pour.source, tilt_angle_rad=angle, tilt_rate_rad_s=rate,
+                          achieved_ml=poured, remaining_ml=max(self.task.pour.volume_ml - poured, 0.0), done=done,
+                          controller=self.task.controller or "pid",
+                          axis_point_m=self.axis.pivot_world(eng._frame_poses[self.src]).tolist(),
+                          axis_direction=self.axis.axis.tolist())
+
+    def _update_mpc(self, eng) -> tuple[float, float, bool]:
+        pose = eng._frame_poses[self.src]
+        tilt = tilt_from_upright(pose)
+        elapsed = 1 if self.last_sim_t < 0 else max(1, int(round((eng._sim_t - self.last_sim_t) / eng.dt)))
+        with torch.enable_grad():                  # the engine runs without gradients
+            u = self.ctrl.update(eng._state, torch.tensor([tilt], dtype=torch.float64),
+                                 self._space(eng, self.src, self.axis, self.max_angle, self.max_rate),
+                                 self.axis.pivot_world(pose), elapsed)
+        self.last_sim_t = eng._sim_t
+        rate = float(u[0])
+        return min(max(tilt + rate * elapsed * eng.dt, 0.0), self.max_angle), rate, bool(self.ctrl.done)
+
+    def state_dict(self) -> dict:
+        """Tensors, numbers and strings (the engine checkpoint's task keys)."""
+        return {"task": task_to_str(self.task), "task_base": self.base_ml, "control_frame": int(self.control_frame),
+                "max_angle": self.max_angle, "max_rate": self.max_rate, "last_sim_t": self.last_sim_t,
+                "command": [float(self.command[0]), float(self.command[1]), bool(self.command[2])],
+                "pivot_local": torch.as_tensor(self.axis.pivot_local), "axis": torch.as_tensor(self.axis.axis),
+                "pid": {} if self.is_mpc else self.ctrl.state_dict(),
+                "mpc": self.ctrl.state_dict() if self.is_mpc else {}}
 
 
 def task_to_str(task: pb.Task) -> str:

@@ -30,7 +30,7 @@ from ._cull import cull_fallen
 from ._extension import MAX_TIME_OFFSET_S, History, Prepared, prepare
 from ._volumes import CavityVoxels, MaskVolumes, held_count_fast
 from ._cameras import Cameras, check_pose, tilt_from_upright
-from ._task import control_message, make_controller
+from ._task import PourTask
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 from .overlay import make_overlay
 
@@ -157,10 +157,7 @@ class SessionEngine:
         self._frames = 0
         self._volumes: tuple | None = None
         self._mask_vol.reset()
-        self._task: pb.Task | None = None
-        self._pid = None
-        self._task_base = 0.0
-        self._control_frame = -1
+        self._pour: PourTask | None = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -362,28 +359,19 @@ class SessionEngine:
 
     # ------------------------------------------------------------------ task
     def set_task(self, task: pb.Task) -> None:
-        """Set (or, with an empty task, cancel) the pour task; EngineError if impossible."""
+        """Set (or, with an empty task, cancel) the pour task; EngineError if impossible.
+        ``task.controller``: "pid" (default; the tracked target volume) or "mpc" (gradients
+        through the session's model from the tracked particles, one update per frame)."""
         if task.WhichOneof("kind") is None:
-            self._task, self._pid = None, None
+            self._pour = None
             return
-        vols = self.volumes()
-        k = self.object_names.index(task.pour.source) if task.pour.source in self.object_names else None
-        tilt = tilt_from_upright(self._frame_poses[k]) if k is not None else 0.0
-        pid = make_controller(task, self.object_names, self.container_names, vols, self._capacity, tilt)
-        self._task, self._pid = pb.Task(), pid
-        self._task.CopyFrom(task)
-        self._task_base = vols[task.pour.target]
-        self._control_frame = -1
+        copy = pb.Task()
+        copy.CopyFrom(task)
+        self._pour = PourTask.create(copy, self)
 
     def control(self) -> pb.Control | None:
         """The controller's command after the latest frame; None without a task."""
-        if self._task is None:
-            return None
-        poured = self.volumes()[self._task.pour.target] - self._task_base
-        if self._control_frame != self._frames:
-            self._pid.update(self._sim_t, poured)
-            self._control_frame = self._frames
-        return control_message(self._task, self._pid, poured)
+        return None if self._pour is None else self._pour.control(self)
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self) -> None:
