@@ -26,6 +26,13 @@ UP = np.array([0.0, 1.0, 0.0])
 RIM_BAND_M = 0.003
 
 
+def tilt_from_upright(pose: np.ndarray) -> float:
+    """Angle (rad) between an object's +y axis and the world's +y, from its (7,) pose."""
+    x, y, z, w = pose[3:]
+    r11 = 1.0 - 2.0 * (x * x + z * z)
+    return math.acos(min(1.0, max(-1.0, r11)))
+
+
 @dataclass(frozen=True)
 class PourAxis:
     """pivot_local: (3,) m, the pivot in the source's frame; axis: (3,) unit, world."""

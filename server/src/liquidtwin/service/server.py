@@ -278,10 +278,17 @@ class Server:
         return s.status(self.config.server_id)
 
     def _close(self, s: ServedSession, why: str) -> None:
+        """Close ``s`` once (a client's close and the orphan timer may race). It leaves the
+        session list only after it is marked closed on disk, so a session that is no longer
+        listed is never restored after a crash."""
+        with self._lock:
+            if s.closing:
+                return
+            s.closing = True
+        s.close(final=True)
         with self._lock:
             if self.sessions.get(s.id) is s:
                 del self.sessions[s.id]
-        s.close(final=True)
         _log.info("session %s closed (%s); log %s", s.id, why, s.log.path)
 
     # ------------------------------------------------------------------ liveliness

@@ -52,6 +52,7 @@ class ServedSession:
         self.lock = threading.RLock()           # serialises every engine call
         self.failed: str | None = None
         self.closed = False
+        self.closing = False                    # the server claimed its close (once)
         self.orphaned_since: float | None = None
         self.task: Task | None = None
         self._first_ns: int | None = None

@@ -9,6 +9,7 @@ import torch
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..camera import Camera
+from ..control.tilt import tilt_from_upright  # noqa: F401  (the session's name for it)
 from ..recordings.base import check_camera_name
 from .errors import BAD_REQUEST, UNKNOWN_NAME, EngineError
 
@@ -92,10 +93,3 @@ class Cameras:
     def load_state_dict(self, state: dict) -> None:
         self.known = {name: {k: (v.numpy() if isinstance(v, torch.Tensor) else v) for k, v in e.items()}
                       for name, e in state.items()}
-
-
-def tilt_from_upright(pose: np.ndarray) -> float:
-    """Angle (rad) between an object's +y axis and the world's +y, from its (7,) pose."""
-    x, y, z, w = pose[3:]
-    r11 = 1.0 - 2.0 * (x * x + z * z)
-    return math.acos(min(1.0, max(-1.0, r11)))

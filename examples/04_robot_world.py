@@ -1,0 +1,120 @@
+"""A headless robot world that pours through a running liquidtwin server, closed loop.
+
+The world (``liquidtwin.generate.robot.RobotWorld``) is the generator's true physics with a
+hidden effect (drawn from ``--seed`` unless given) and sensor noise. Every frame the robot
+sends the server its thermal camera's liquid mask and its tracked poses, waits for the
+session's Control and turns the source as told (the commanded rate about the Control's axis,
+within the task's limits), then lets the world run one frame. When the controller is done and
+the source is upright again, it reports what the target *truly* holds — the world's own
+count, which the server never sees.
+
+    liquidtwin serve --listen tcp/127.0.0.1:7447 &
+    python examples/04_robot_world.py --connect tcp/127.0.0.1:7447 --ml 8 --controller mpc \\
+        --effect drag --seed 3 --out robot.json
+"""
+
+import argparse
+import json
+import math
+import sys
+import time
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from liquidtwin.control.tilt import turn_pose
+from liquidtwin.generate.robot import RobotWorld
+from liquidtwin_client import Client
+
+#: Stamps start here (2026-01-01T00:00:00Z), like the generator's recordings.
+START_NS = 1_767_225_600_000_000_000
+
+
+def effect_arg(text: str):
+    """NAME or NAME=VALUE → (name, value or None: drawn from the seed)."""
+    name, _, value = text.partition("=")
+    return (name, float(value) if value else None)
+
+
+def wait_control(session, stamp: int, timeout: float):
+    """The Control answering the frame stamped ``stamp`` (other outputs are skipped)."""
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        out = session.next_output(timeout=left)
+        if out is not None and out.stream == "control" and out.header.stamp_ns == stamp:
+            return out.message
+    raise TimeoutError(f"no control for the frame stamped {stamp} within {timeout} s")
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--connect", default="tcp/127.0.0.1:7447", help="server endpoint (default: %(default)s)")
+    p.add_argument("--scene", default="pour_dump", help="pour scene (default: %(default)s)")
+    p.add_argument("--source", default="cup", help="source container model (default: %(default)s)")
+    p.add_argument("--target", default="pan", help="target container model (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="world, effect and noise (default: %(default)s)")
+    p.add_argument("--effect", type=effect_arg, action="append", default=[],
+                   help="hidden effect NAME or NAME=VALUE (repeatable; default: none)")
+    p.add_argument("--no-noise", action="store_true", help="perfect sensors")
+    p.add_argument("--ml", type=float, default=8.0, help="ml to pour (default: %(default)s)")
+    p.add_argument("--controller", default="mpc", choices=("pid", "mpc"), help="(default: %(default)s)")
+    p.add_argument("--tracking", default="warp_field", help="session tracker (default: %(default)s)")
+    p.add_argument("--fps", type=float, default=30.0, help="frames per s (default: %(default)s)")
+    p.add_argument("--max-angle", type=float, default=2.0, help="tilt limit, rad (default: %(default)s)")
+    p.add_argument("--max-rate", type=float, default=1.5, help="rate limit, rad/s (default: %(default)s)")
+    p.add_argument("--seconds", type=float, default=6.0, help="longest run, s (default: %(default)s)")
+    p.add_argument("--timeout", type=float, default=60.0, help="longest wait for a control, s (default: %(default)s)")
+    p.add_argument("--out", help="write the result as JSON here")
+    a = p.parse_args(argv)
+
+    world = RobotWorld(a.scene, seed=a.seed, quick=True, effects=a.effect, noise=not a.no_noise,
+                       choices={"source": a.source, "target": a.target})
+    before = world.held_ml()
+    frame_ns = int(round(1e9 / a.fps))
+    dt = frame_ns * 1e-9
+    done_at, top, frames = None, 0.0, 0
+    t0 = time.perf_counter()
+    with Client(connect=a.connect) as client:
+        session = client.create_session(world.spec(), tracking=a.tracking)
+        cams = world.cameras()
+        for name, c in cams.items():
+            session.publish_camera(name, c.K, c.D, c.width, c.height, START_NS)
+        session.set_pour_task("source", "target", a.ml, a.max_angle, a.max_rate, controller=a.controller)
+        bar = tqdm(range(int(a.seconds * a.fps)), desc=f"{a.controller} {a.ml:g} ml", unit="frame")
+        for i in bar:
+            stamp = START_NS + i * frame_ns
+            poses, masks = world.sense()
+            for name, mask in masks.items():
+                session.publish_mask(name, mask, stamp)
+            session.publish_poses({**poses, **{n: c.pose for n, c in cams.items()}}, stamp)
+            c = wait_control(session, stamp, a.timeout)
+            frames += 1
+            tilt = world.tilt("source")
+            if c.done and done_at is None:
+                done_at = world.t
+            if done_at is not None and world.t > done_at + 1.5 and tilt < 1e-6:
+                break
+            turn = min(max(tilt + c.tilt_rate_rad_s * dt, 0.0), a.max_angle) - tilt
+            pose = turn_pose(world.poses[world.setup.index("source")], c.axis_point_m, c.axis_direction, turn)
+            world.move({"source": pose}, dt)
+            top = max(top, world.tilt("source"))
+            bar.set_postfix(tilt=f"{math.degrees(tilt):.0f}", achieved=f"{c.achieved_ml:.1f}")
+        session.close()
+    after = world.held_ml()
+    result = {"controller": a.controller, "ask_ml": a.ml, "poured_ml": after["target"] - before["target"],
+              "server_achieved_ml": c.achieved_ml, "source_before_ml": before["source"],
+              "spilled_ml": before["source"] + before["target"] - after["source"] - after["target"],
+              "switched_s": done_at, "upright": bool(world.tilt("source") < 1e-6),
+              "max_tilt_deg": math.degrees(top), "frames": frames, "wall_s": time.perf_counter() - t0,
+              "scene": a.scene, "seed": a.seed, "effects": [e.as_dict() for e in world.effects]}
+    print(f"asked {a.ml:g} ml, poured {result['poured_ml']:.2f} ml (the server thought "
+          f"{c.achieved_ml:.2f}), spilled {result['spilled_ml']:.2f} ml, {frames} frames")
+    if a.out:
+        with open(a.out, "w") as f:
+            json.dump(result, f, indent=2)
+    return result
+
+
+if __name__ == "__main__":
+    main()
+    sys.exit(0)

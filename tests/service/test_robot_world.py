@@ -1,0 +1,38 @@
+"""Issue 7's service-level check: a headless robot world (examples/04_robot_world.py, a real
+process) simulates the true world — jittered fluid, a hidden drag, noisy tracker poses and
+noisy thermal masks — streams it to a real ``liquidtwin serve`` over Zenoh on 127.0.0.1,
+applies the MPC task's controls and measures what truly landed in the pan (the world's own
+count; the server never sees it)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "04_robot_world.py"
+ASK_ML = 8.0
+#: The pour's tolerance here. The quick cup (323 particles, 0.07 ml each) lets its liquid go
+#: in slugs of up to ~3 ml a frame at 30 fps, and the twin misjudges what the world spills:
+#: measured (seed 3) 6.39 ml with the hidden drag, 5.55 ml without, while the twin believed
+#: 8.4 / 8.3 ml; the PD baseline empties the cup (22.2 / 21.9 ml).
+TOL_ML = 3.0
+
+
+def test_robot_world_pours_the_ask_through_the_server_closed_loop(servers, tmp_path):
+    proc = servers.start()
+    out = tmp_path / "robot.json"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+    run = subprocess.run([sys.executable, str(EXAMPLE), "--connect", proc.endpoint, "--ml", str(ASK_ML),
+                          "--controller", "mpc", "--effect", "drag", "--seed", "3", "--seconds", "5",
+                          "--out", str(out)], capture_output=True, text=True, timeout=600, env=env)
+    assert run.returncode == 0, run.stderr[-3000:] + proc.stderr()[-3000:]
+    r = json.loads(out.read_text())
+    print(r)
+    assert r["effects"][0]["name"] == "drag" and r["switched_s"] is not None and r["upright"]
+    assert r["max_tilt_deg"] > 60                      # it tilted until the liquid flowed
+    assert abs(r["poured_ml"] - ASK_ML) < TOL_ML, r     # what truly landed in the pan
+    assert r["poured_ml"] < 0.5 * r["source_before_ml"]  # not the whole cup, as the PD baseline does
+    assert r["spilled_ml"] < TOL_ML, r
