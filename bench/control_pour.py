@@ -10,14 +10,12 @@ Appends one JSON record per target to bench/history.jsonl (``--no-history`` to s
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
+from _record import emit
 from liquidtwin.control.pour import run_pour
 from liquidtwin.generate.catalog import build_setup
 from liquidtwin.generate.world import MODEL_ITERATIONS, MODEL_RELAXATION
@@ -45,7 +43,6 @@ def main() -> None:
                                 volume_ml=a.fill, settle_s=0.5)
     mlpp = rep.settled_ml / state.x.shape[0]
     print(f"cup: {state.x.shape[0]} particles, {rep.settled_ml:.1f} ml settled")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     for target in (float(t) for t in a.targets.split(",")):
         t0 = time.perf_counter()
         r = run_pour(setup, model, state, target, mlpp, step_size=a.step_size, anticipate=not a.no_anticipate,
@@ -53,12 +50,8 @@ def main() -> None:
         rec = {"what": "mpc_pour", "particles": int(state.x.shape[0]), "target_ml": target,
                "poured_ml": r.poured_ml, "left_ml": r.left_ml, "spilled_ml": r.spilled_ml,
                "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "max_angle_deg": float(np.max(r.angles_deg)),
-               "update_s": r.update_s, "wall_s": time.perf_counter() - t0, "peak_mem_bytes": None,
-               "commit": commit, "date": time.strftime("%Y-%m-%d")}
-        print(json.dumps(rec))
-        if not a.no_history:
-            with open(Path(__file__).with_name("history.jsonl"), "a") as f:
-                f.write(json.dumps(rec) + "\n")
+               "update_s": r.update_s, "wall_s": time.perf_counter() - t0, "peak_mem_bytes": None}
+        emit(rec, not a.no_history)
 
 
 if __name__ == "__main__":

@@ -13,9 +13,7 @@ drain predictions) until the switch, and appends one JSON record per controller 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import subprocess
 import time
 from pathlib import Path
 
@@ -24,6 +22,7 @@ import torch
 from liquidtwin_proto import liquidtwin_pb2 as pb
 from tqdm.auto import tqdm
 
+from _record import emit
 from liquidtwin.control.tilt import turn_pose
 from liquidtwin.recordings import read_recording
 from liquidtwin.session import SessionEngine
@@ -78,14 +77,8 @@ def main() -> None:
     a = p.parse_args()
     torch.set_num_threads(a.threads)
     spec = read_recording(SPEC, images=False).spec
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     for controller in a.controllers.split(","):
-        rec = pour(spec, controller, a.ml, a.fps, a.max_angle, a.max_rate, a.seconds)
-        rec |= {"commit": commit, "date": time.strftime("%Y-%m-%d")}
-        print(json.dumps(rec))
-        if not a.no_history:
-            with open(Path(__file__).with_name("history.jsonl"), "a") as f:
-                f.write(json.dumps(rec) + "\n")
+        emit(pour(spec, controller, a.ml, a.fps, a.max_angle, a.max_rate, a.seconds), not a.no_history)
 
 
 if __name__ == "__main__":
