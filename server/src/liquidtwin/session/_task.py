@@ -136,6 +136,9 @@ class PourTask:
         pose = eng._frame_poses[self.src]
         tilt = tilt_from_upright(pose)
         elapsed = 1 if self.last_sim_t < 0 else max(1, int(round((eng._sim_t - self.last_sim_t) / eng.dt)))
+        # the session's model now (a loaded extension changes it, and a refill its ml per particle)
+        self.ctrl.model = self.ctrl.mpc.model = eng._model
+        self.ctrl.ml = eng._ml_per_particle
         with torch.enable_grad():                  # the engine runs without gradients
             u = self.ctrl.update(eng._state, torch.tensor([tilt], dtype=torch.float64),
                                  self._space(eng, self.src, self.axis, self.max_angle, self.max_rate),
