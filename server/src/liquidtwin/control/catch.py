@@ -11,7 +11,8 @@ start). The source's motion is the robot's own script, so the rollout knows it. 
 mean horizontal distance between where each falling particle will land (ballistically,
 where it crosses the catcher's rim height) and the catcher's axis, over the particles that
 left the source and are still above that height. While nothing falls (before the pour,
-after it) the loss is the squared distance from where the catcher is: it holds still.
+after it: less than ``FALLING_MIN`` of the liquid) the loss is the squared distance from
+where the catcher is: it holds still.
 """
 
 from __future__ import annotations
@@ -32,9 +33,14 @@ from .mpc import MPC, ControlError, ControlSpace
 
 #: (pour direction: −1 towards −x / +1 towards +x, lip drift along x in m/s) of the 8 motions.
 SOURCE_MOTIONS = tuple((d, v) for d in (-1, 1) for v in (-0.06, -0.02, 0.02, 0.06))
-MAX_SPEED = 1.0
+MAX_SPEED = 0.5
 RANGE = 0.3
 G = 9.81
+#: Below this share of the liquid falling, the catcher holds still: the loss's gradient is
+#: the mean direction to each landing point (it seeks their median), so a few drips or
+#: splashes would otherwise steer it as hard as the stream (measured: after the stream the
+#: catcher wandered to its range limit, spilling what it held).
+FALLING_MIN = 0.02
 
 
 def catching_setup(motion: int, quick: bool = True, seed: int = 0):
@@ -100,7 +106,7 @@ def run_catch(setup, model, state, *, horizon: int = 10, step_size: float = 0.5,
         x, v = s.by_id()
         x, v = x[away["ids"]], v[away["ids"]]
         above = x[:, 1] > rim_y
-        if not bool(above.any()):                     # nothing falling: hold still
+        if int(above.sum()) < FALLING_MIN * n:        # (next to) nothing falling: hold still
             return (q[0] - float(hold["x"])) ** 2
         x, v = x[above], v[above]
         # where each falling particle crosses the catcher's rim height (ballistic)
