@@ -154,53 +154,45 @@ def run(args) -> int:
     return 0
 
 
-def _plot(path: Path, results: list[dict], seconds: float) -> None:
+def _figure(path: Path, results: list[dict], key: str, good: float, what: str, title: str, draw) -> None:
+    """Left: ``draw(axes)`` (the controls over time); right: the liquid per run, caught on
+    spilled, with the target line at ``good``."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
-    for r in results:
-        tl = np.asarray(r["tilts_deg"])
-        t = np.linspace(0, seconds, len(tl))
-        a.plot(t, tl[:, 0], label=f"bowl {r['target']} x")
-        a.plot(t, tl[:, 1], ls="--")
+    draw(a)
     a.set_xlabel("time (s)")
-    a.set_ylabel("tilt (deg): about x solid, about z dashed")
-    a.legend(fontsize=7, ncol=2)
-    idx = np.arange(len(results))
-    b.bar(idx, [100 * r["caught"] for r in results], label="target bowl")
-    b.bar(idx, [100 * r["spilled"] for r in results], bottom=[100 * r["caught"] for r in results], label="spilled")
-    b.set_xticks(idx, [str(r["target"]) for r in results])
-    b.set_xlabel("target bowl")
-    b.set_ylabel("% of the liquid")
-    b.axhline(99, color="k", lw=0.6, ls=":")
-    b.legend(fontsize=8)
-    fig.suptitle("Plate scene: MPC through SPNets")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _plot_catching(path: Path, results: list[dict]) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
-    for r in results:
-        xs = np.asarray(r["xs"])
-        a.plot(np.arange(1, len(xs) + 1) * r["dt"], 100 * xs, label=f"motion {r['motion']}")
-    a.set_xlabel("time (s)")
-    a.set_ylabel("catcher x (cm)")
     a.legend(fontsize=7, ncol=2)
     idx = np.arange(len(results))
     b.bar(idx, [100 * r["caught"] for r in results], label="caught")
     b.bar(idx, [100 * r["spilled"] for r in results], bottom=[100 * r["caught"] for r in results], label="spilled")
-    b.set_xticks(idx, [str(r["motion"]) for r in results])
-    b.set_xlabel("source motion")
+    b.set_xticks(idx, [str(r[key]) for r in results])
+    b.set_xlabel(what)
     b.set_ylabel("% of the liquid")
-    b.axhline(98, color="k", lw=0.6, ls=":")
+    b.axhline(100 * good, color="k", lw=0.6, ls=":")
     b.legend(fontsize=8)
-    fig.suptitle("Catching: MPC through SPNets")
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _plot(path: Path, results: list[dict], seconds: float) -> None:
+    def draw(a):
+        for r in results:
+            tl = np.asarray(r["tilts_deg"])
+            t = np.linspace(0, seconds, len(tl))
+            a.plot(t, tl[:, 0], label=f"bowl {r['target']} x")
+            a.plot(t, tl[:, 1], ls="--")
+        a.set_ylabel("tilt (deg): about x solid, about z dashed")
+    _figure(path, results, "target", GOOD, "target bowl", "Plate scene: MPC through SPNets", draw)
+
+
+def _plot_catching(path: Path, results: list[dict]) -> None:
+    def draw(a):
+        for r in results:
+            xs = np.asarray(r["xs"])
+            a.plot(np.arange(1, len(xs) + 1) * r["dt"], 100 * xs, label=f"motion {r['motion']}")
+        a.set_ylabel("catcher x (cm)")
+    _figure(path, results, "motion", CATCH_GOOD, "source motion", "Catching: MPC through SPNets", draw)
