@@ -18,9 +18,8 @@ import torch
 from _record import emit
 from liquidtwin.control.pour import run_pour
 from liquidtwin.generate.catalog import build_setup
-from liquidtwin.generate.world import MODEL_ITERATIONS, MODEL_RELAXATION
+from liquidtwin.generate.world import model_for
 from liquidtwin.scenes.fill import fill_container
-from liquidtwin.sim import FluidModel
 
 
 def main() -> None:
@@ -36,8 +35,7 @@ def main() -> None:
     a = p.parse_args()
     torch.set_num_threads(a.threads)
     setup = build_setup("pour_hold", np.random.default_rng(0), quick=True, source="cup", target="bowl", fraction=0.9)
-    model = FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
-                              objects=[o.grid for o in setup.objects])
+    model = model_for(setup)
     k = setup.index("source")
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                                 volume_ml=a.fill, settle_s=0.5)

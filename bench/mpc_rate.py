@@ -23,9 +23,9 @@ from _record import emit
 from liquidtwin.control.mpc import MPC
 from liquidtwin.control.pour import lip_space, predict_landed
 from liquidtwin.generate.catalog import build_setup
-from liquidtwin.generate.world import MODEL_ITERATIONS, MODEL_RELAXATION
+from liquidtwin.generate.world import model_for
 from liquidtwin.scenes.fill import fill_container
-from liquidtwin.sim import FluidModel, step
+from liquidtwin.sim import step
 
 
 def main() -> None:
@@ -38,8 +38,7 @@ def main() -> None:
     a = p.parse_args()
     torch.set_num_threads(a.threads)
     setup = build_setup("pour_hold", np.random.default_rng(0), quick=False, source="cup", target="bowl", fraction=0.9)
-    model = FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
-                              objects=[o.grid for o in setup.objects])
+    model = model_for(setup)
     src, dst = setup.index("source"), setup.index("target")
     space, lip = lip_space(setup)
     lip = lip.to(torch.float32)

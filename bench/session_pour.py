@@ -23,10 +23,9 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 from tqdm.auto import tqdm
 
 from _record import emit
-from liquidtwin.control.tilt import turn_pose
+from liquidtwin.control.tilt import tilt_from_upright, turn_pose
 from liquidtwin.recordings import read_recording
 from liquidtwin.session import SessionEngine
-from liquidtwin.session._cameras import tilt_from_upright
 
 SPEC = Path(__file__).resolve().parents[1] / "tests" / "server" / "data" / "golden_pour_dump.mcap"
 

@@ -19,7 +19,6 @@ import math
 import sys
 import time
 
-import numpy as np
 from tqdm.auto import tqdm
 
 from liquidtwin.control.tilt import turn_pose

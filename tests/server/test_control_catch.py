@@ -10,11 +10,11 @@ import torch
 
 from liquidtwin.control.catch import SOURCE_MOTIONS, catch_space, catching_setup, run_catch
 from liquidtwin.control.mpc import ControlError
-from liquidtwin.generate.world import MODEL_ITERATIONS, MODEL_RELAXATION
+from liquidtwin.generate.world import model_for
 from liquidtwin.scenes.fill import fill_container
 from liquidtwin.scenes.motions import quat_matrix
 from liquidtwin.scenes.liquid_level import held
-from liquidtwin.sim import FluidModel, step
+from liquidtwin.sim import step
 
 
 @pytest.mark.parametrize("motion", range(len(SOURCE_MOTIONS)))
@@ -52,8 +52,7 @@ def test_the_control_moves_only_the_catcher():
 
 def test_mpc_slides_the_catcher_under_the_stream():
     setup = catching_setup(3)              # pours towards −x, lands ~8.5 cm from the catcher's start
-    model = FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
-                              objects=[o.grid for o in setup.objects])
+    model = model_for(setup)
     k = setup.index("source")
     state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                               volume_ml=0.2 * dict(setup.fills)["source"], settle_s=0.3)

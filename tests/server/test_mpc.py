@@ -103,11 +103,9 @@ def test_a_short_plate_run_sends_the_liquid_towards_its_bowl(plate):
 @pytest.fixture(scope="module")
 def cup():
     from liquidtwin.generate.catalog import build_setup
-    from liquidtwin.generate.world import MODEL_ITERATIONS, MODEL_RELAXATION
-    from liquidtwin.sim import FluidModel
+    from liquidtwin.generate.world import model_for
     setup = build_setup("pour_hold", np.random.default_rng(0), quick=True, source="cup", target="bowl", fraction=0.9)
-    model = FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
-                              objects=[o.grid for o in setup.objects])
+    model = model_for(setup)
     k = setup.index("source")
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                                 volume_ml=40.0, settle_s=0.3)

@@ -12,9 +12,8 @@ import pytest
 import torch
 from liquidtwin_proto import liquidtwin_pb2 as pb
 from liquidtwin.recordings import read_recording
-from liquidtwin.control.tilt import turn_pose
+from liquidtwin.control.tilt import tilt_from_upright, turn_pose
 from liquidtwin.session import SessionEngine
-from liquidtwin.session._cameras import tilt_from_upright
 
 GOLDEN = Path(__file__).parent / "data" / "golden_pour_dump.mcap"
 FPS = 30.0

@@ -18,7 +18,6 @@ where the catcher is: it holds still.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass
 
@@ -58,7 +57,6 @@ def catching_setup(motion: int, quick: bool = True, seed: int = 0):
     pivot = np.asarray(pour.pivot, float) * ([1.0, 1.0, 1.0] if direction < 0 else [-1.0, 1.0, 1.0])
     axis = (0.0, 0.0, 1.0) if direction < 0 else (0.0, 0.0, -1.0)
     motion_src = dataclasses.replace(pour, pivot=tuple(pivot), axis=axis, path=path)
-    catcher = base.objects[base.index("catcher")]
     still = mo.Static(tuple(np.concatenate([[lip[0], 0.0, lip[2]], [0.0, 0.0, 0.0, 1.0]])))
     objects = tuple(dataclasses.replace(o, motion=motion_src) if o.name == "source" else
                     dataclasses.replace(o, motion=still) if o.name == "catcher" else o for o in base.objects)

@@ -143,31 +143,32 @@ class PourMPC:
         prev = self.steps
         if self.updates:
             self.steps += int(elapsed)
+        self.updates += 1
         if self.done:
-            self.updates += 1
             return self.mpc.update(state, q)[0] if not self.anticipate else \
                 _return_rate(q, self.model.dt, space.max_rate)
         held_now = held(self.model, state, self.src, self.src_obj)[0]
+        if not self.anticipate:                       # the thesis: once the ask has left the cup
+            if (self.cup0 - int(held_now.sum())) * self.ml >= self.target_ml:
+                self.done = True
+                self.mpc.plan = torch.zeros_like(self.mpc.plan)
+            else:
+                self.ids = torch.as_tensor(np.flatnonzero(held_now))
+            return self.mpc.update(state, q)[0]
         self.ids = torch.as_tensor(np.flatnonzero(held_now))
         u = self.mpc.update(state, q)[0]              # what runs until the next update, unless we switch
-        if self.anticipate:
-            near = self.predicted >= NEAR * self.target_ml          # close: check every update
-            due = self.updates == 0 or self.steps // CHECK_EVERY > prev // CHECK_EVERY
-            switch = False
-            if float(q[0]) > MIN_CHECK_TILT and (near or due):
-                ask = lambda hold=None: predict_landed(self.model, state, q[0], space, self.dst,  # noqa: E731
-                                                       self.dst_obj, self.ml, hold) - self.base_ml
-                self.predicted = ask((u, int(elapsed)))             # turning back at the next update
-                if self.predicted >= self.target_ml:                # now or next: whichever lands closer
-                    switch = self.predicted - self.target_ml > self.target_ml - ask()
-        else:
-            switch = (self.cup0 - int(held_now.sum())) * self.ml >= self.target_ml
-        self.updates += 1
-        if not switch:
-            return u
-        self.done = True
-        self.mpc.plan = torch.zeros_like(self.mpc.plan)
-        return self.mpc.update(state, q)[0] if not self.anticipate else _return_rate(q, self.model.dt, space.max_rate)
+        near = self.predicted >= NEAR * self.target_ml              # close: check every update
+        due = self.updates == 1 or self.steps // CHECK_EVERY > prev // CHECK_EVERY
+        if float(q[0]) > MIN_CHECK_TILT and (near or due):
+            ask = lambda hold=None: predict_landed(self.model, state, q[0], space, self.dst,  # noqa: E731
+                                                   self.dst_obj, self.ml, hold) - self.base_ml
+            self.predicted = ask((u, int(elapsed)))                 # turning back at the next update
+            # now or next: whichever lands closer to the ask
+            if self.predicted >= self.target_ml and self.predicted - self.target_ml > self.target_ml - ask():
+                self.done = True
+                self.mpc.plan = torch.zeros_like(self.mpc.plan)
+                return _return_rate(q, self.model.dt, space.max_rate)
+        return u
 
     def state_dict(self) -> dict:
         """What changes (tensors and plain numbers; torch.load(weights_only=True))."""

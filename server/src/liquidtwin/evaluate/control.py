@@ -69,14 +69,12 @@ def run_motion(work) -> dict:
     import torch
 
     from ..control.catch import catching_setup, run_catch
-    from ..generate.world import MODEL_ITERATIONS, MODEL_RELAXATION
+    from ..generate.world import model_for
     from ..scenes.fill import fill_container
-    from ..sim import FluidModel
     motion, seed, quick, horizon, step_size = work
     torch.set_num_threads(1)
     setup = catching_setup(motion, quick, seed)
-    model = FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
-                              objects=[o.grid for o in setup.objects])
+    model = model_for(setup)
     k = setup.index("source")
     state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                               volume_ml=dict(setup.fills)["source"], settle_s=0.5)

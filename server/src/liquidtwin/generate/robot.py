@@ -61,10 +61,6 @@ class RobotWorld:
         self._radius = particle_radius(self.world.model.spacing)
         self._ml = next(iter(self.reports.values())).particle_volume_ml if self.reports else 0.0
 
-    @property
-    def names(self) -> list[str]:
-        return list(self.setup.names)
-
     def spec(self, session_id: str = "robot-world"):
         """The SceneSpec the robot states (stated fills, liquidtwin's solver settings)."""
         return scene_spec(self.setup, session_id)

@@ -28,6 +28,13 @@ MODEL_RELAXATION = 4.0
 WORLD_ITERATIONS = 6
 
 
+def model_for(setup) -> FluidModel:
+    """liquidtwin's own model of a catalogue scene ``setup``: its objects, h and dt, the
+    model's solver settings and default fluid parameters (what a server would run)."""
+    return FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
+                             objects=[o.grid for o in setup.objects])
+
+
 @dataclass(frozen=True)
 class World:
     """Everything needed to simulate the truth.

@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..camera import Camera
-from ..control.tilt import tilt_from_upright  # noqa: F401  (the session's name for it)
 from ..recordings.base import check_camera_name
 from .errors import BAD_REQUEST, UNKNOWN_NAME, EngineError
 

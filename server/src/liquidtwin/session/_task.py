@@ -11,8 +11,7 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..control import PourPID
 from ..control.pour import PourMPC
-from ..control.tilt import PourAxis, pour_axis, tilt_space
-from ._cameras import tilt_from_upright
+from ..control.tilt import PourAxis, pour_axis, tilt_from_upright, tilt_space
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 
 #: Limits used when a task leaves them at 0: tilt up to 135° at up to 1 rad/s.
@@ -70,7 +69,7 @@ class PourTask:
         self.max_angle, self.max_rate, self.ctrl = float(max_angle), float(max_rate), ctrl
         self.src, self.dst = names.index(task.pour.source), names.index(task.pour.target)
         self.control_frame, self.last_sim_t = -1, -1.0
-        self.command = (0.0, 0.0, False)            # (angle rad, rate rad/s, done) of the last update
+        self.command = (0.0, 0.0, False)            # MPC: (angle rad, rate rad/s, done) of its last update
 
     @property
     def is_mpc(self) -> bool:
@@ -123,9 +122,12 @@ class PourTask:
         to the service)."""
         poured = eng.volumes()[self.task.pour.target] - self.base_ml
         if self.control_frame != eng._frames:
-            self.command = self._update_mpc(eng) if self.is_mpc else self.ctrl.update(eng._sim_t, poured)
+            if self.is_mpc:
+                self.command = self._update_mpc(eng)
+            else:
+                self.ctrl.update(eng._sim_t, poured)
             self.control_frame = eng._frames
-        angle, rate, done = self.command
+        angle, rate, done = self.command if self.is_mpc else (self.ctrl.angle, self.ctrl.rate, self.ctrl.done)
         return pb.Control(object=self.task.pour.source, tilt_angle_rad=angle, tilt_rate_rad_s=rate,
                           achieved_ml=poured, remaining_ml=max(self.task.pour.volume_ml - poured, 0.0), done=done,
                           controller=self.task.controller or "pid",

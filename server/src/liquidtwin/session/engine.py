@@ -29,7 +29,7 @@ from ._checkpoint import engine_state, load_engine_state
 from ._cull import cull_fallen
 from ._extension import MAX_TIME_OFFSET_S, History, Prepared, prepare
 from ._volumes import CavityVoxels, MaskVolumes, held_count_fast
-from ._cameras import Cameras, check_pose, tilt_from_upright
+from ._cameras import Cameras, check_pose
 from ._task import PourTask
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 from .overlay import make_overlay

@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 
 from ..camera import Camera
 from ..generate.catalog import build_setup
-from ..generate.world import MODEL_ITERATIONS, MODEL_RELAXATION
+from ..generate.world import model_for
 from ..scenes.fill import fill_container
 from ..sim import FluidModel, make_state, step
 
@@ -71,8 +71,7 @@ def scene_model(scene: str, seed: int, quick: bool):
         setup = build_setup(scene, np.random.default_rng(seed), quick=quick)
     except ValueError as exc:
         raise SequenceError(str(exc)) from None
-    model = FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
-                              objects=[o.grid for o in setup.objects])
+    model = model_for(setup)
     return setup, model
 
 
