@@ -135,3 +135,26 @@ def test_a_pour_tilts_the_cup_and_refuses_what_it_cannot_pour(cup):
     r = run_pour(setup, model, state, 10.0, mlpp, max_seconds=0.25)
     print(f"\ncup angle after 0.25 s: {r.angles_deg[-1]:.1f}° (every 5 steps: {r.angles_deg[::5].round(1)})")
     assert r.angles_deg[-1] > 10.0 and np.all(np.diff(r.angles_deg) >= -1e-9)
+
+
+def test_tasks_find_their_particles_by_label_after_the_rows_are_resorted(plate):
+    """A task picks particles on one state (a row mask) and must find the same particles in
+    every rolled-out state: a step re-sorts the rows by cell, and removed particles leave gaps
+    in the labels."""
+    from liquidtwin.control.mpc import by_ids
+    from liquidtwin.sim import step
+    setup, model, state = plate
+    keep = torch.ones(state.x.shape[0], dtype=torch.bool)
+    keep[::7] = False                                  # labels with gaps
+    s0 = state.subset(keep)
+    pick = torch.zeros(s0.x.shape[0], dtype=torch.bool)
+    pick[3::5] = True
+    ids = s0.ids[pick]
+    s1 = step(model, s0, torch.as_tensor(setup.poses_at(model.dt)))
+    assert not torch.equal(s1.ids, s0.ids)            # the rows did move
+    x1, v1 = by_ids(s1, ids)
+    for j, label in enumerate(ids.tolist()):           # brute force: look each label up
+        row = int(torch.nonzero(s1.ids == label)[0, 0])
+        assert torch.equal(x1[j], s1.x[row]) and torch.equal(v1[j], s1.v[row])
+    x0, _ = by_ids(s0, ids)
+    assert torch.equal(x0, s0.x[pick])

@@ -27,6 +27,18 @@ class ControlError(ValueError):
     """A task or control request that cannot be served (says why)."""
 
 
+def by_ids(state: FluidState, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(x, v) of the particles labelled ``ids`` (K,), in that order (differentiable).
+
+    A task picks its particles on the current state (``state.ids[mask]`` for a row mask such
+    as :func:`liquidtwin.scenes.liquid_level.held`'s) and finds them again by label in every
+    rolled-out state: the simulator re-sorts rows by grid cell each step, so row numbers do
+    not carry over (and are not ``by_id()`` positions once particles have been removed)."""
+    order = torch.argsort(state.ids)
+    rows = order[torch.searchsorted(state.ids[order], ids.to(state.ids))]
+    return state.x[rows], state.v[rows]
+
+
 @dataclass
 class ControlSpace:
     """How controls move the scene.

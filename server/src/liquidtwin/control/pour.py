@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 
 from ..scenes.liquid_level import held
 from ..sim import step
-from .mpc import MPC, ControlError, ControlSpace
+from .mpc import MPC, ControlError, ControlSpace, by_ids
 
 #: Tilt limits (rad) and rate limit (rad/s) of the cup.
 MIN_TILT, MAX_TILT = math.radians(-10.0), math.radians(150.0)
@@ -121,13 +121,12 @@ class PourMPC:
         in_cup = held(model, state, src, src_obj)[0]
         self.cup0 = int(in_cup.sum())
         self.done, self.predicted, self.updates, self.steps = False, 0.0, 0, 0     # steps: model steps run
-        self.ids = torch.as_tensor(np.flatnonzero(in_cup))
+        self.ids = state.ids[torch.as_tensor(in_cup)]
         self.mpc = MPC(model, space, self._loss, horizon=horizon, step_size=step_size)
 
     def _loss(self, s, k, q):
         if not self.done:
-            x, _ = s.by_id()
-            return (x[self.ids] - self.lip).norm(dim=1).mean()
+            return (by_ids(s, self.ids)[0] - self.lip).norm(dim=1).mean()
         return (q ** 2).sum()
 
     def update(self, state, q: torch.Tensor, space: ControlSpace | None = None, lip=None,
@@ -153,9 +152,9 @@ class PourMPC:
                 self.done = True
                 self.mpc.plan = torch.zeros_like(self.mpc.plan)
             else:
-                self.ids = torch.as_tensor(np.flatnonzero(held_now))
+                self.ids = state.ids[torch.as_tensor(held_now)]
             return self.mpc.update(state, q)[0]
-        self.ids = torch.as_tensor(np.flatnonzero(held_now))
+        self.ids = state.ids[torch.as_tensor(held_now)]
         u = self.mpc.update(state, q)[0]              # what runs until the next update, unless we switch
         near = self.predicted >= NEAR * self.target_ml              # close: check every update
         due = self.updates == 1 or self.steps // CHECK_EVERY > prev // CHECK_EVERY
