@@ -69,3 +69,34 @@ def test_mpc_slides_the_catcher_under_the_stream():
           f"{r.left_source:.3f}, catcher {100 * r.xs[0]:.1f} → {100 * r.xs[-1]:.1f} cm")
     assert r.left_source > 0.9                          # the pour happened
     assert r.caught > 0.85 and r.caught > still + 0.3, (r.caught, still)
+
+
+def test_the_first_landing_prediction_matches_where_the_stream_crosses_the_rim():
+    """first_landing (a model rollout plus the ballistic flight) against a brute-force record
+    of where each particle crosses the catcher's rim height in a longer rollout."""
+    from liquidtwin.control.catch import FALLING_MIN, first_landing
+    setup = catching_setup(0)
+    model = model_for(setup)
+    k, kc = setup.index("source"), setup.index("catcher")
+    state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
+                              volume_ml=0.3 * dict(setup.fills)["source"], settle_s=0.3)
+    rim_y = float(setup.poses_at(0.0)[kc][1]) + float(setup.objects[kc].model.rim_height)
+    x_catcher = float(setup.poses_at(0.0)[kc][0])
+    s, crossed, i, predicted = state, {}, 0, float("nan")
+    n = state.x.shape[0]
+    with torch.no_grad():
+        while len(crossed) < max(FALLING_MIN * n, 3) and i < 300:
+            if i % 6 == 0 and math.isnan(predicted):
+                predicted = first_landing(setup, model, s, i * model.dt, x_catcher)
+            prev = dict(zip(s.ids.tolist(), s.x[:, 1].tolist()))
+            poses = torch.as_tensor(setup.poses_at((i + 1) * model.dt))
+            s = step(model, s, poses.to(s.x))
+            i += 1
+            for pid, x, y in zip(s.ids.tolist(), s.x[:, 0].tolist(), s.x[:, 1].tolist()):
+                if prev[pid] > rim_y >= y and pid not in crossed:
+                    crossed[pid] = x
+    actual = float(np.median(list(crossed.values())))
+    print(f"\npredicted first landing {100 * predicted:.1f} cm, measured {100 * actual:.1f} cm "
+          f"(catcher at {100 * x_catcher:.1f} cm, stream after {i} steps)")
+    assert not math.isnan(predicted) and abs(predicted - actual) < 0.015
+    assert actual < x_catcher - 0.08                 # far enough that waiting for the stream loses liquid
