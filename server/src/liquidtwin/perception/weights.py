@@ -6,11 +6,11 @@ constructor arguments, network resolution) plus how it was trained.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import torch
 
+from .. import _weights
 from .nets import KINDS, build_model
 
 FORMAT = "liquidtwin.perception.v1"
@@ -27,35 +27,22 @@ def save_model(path, net: torch.nn.Module, meta: dict | None = None) -> Path:
     if hasattr(net, "frames"):
         info["kwargs"]["frames"] = net.frames
     info.update(meta or {})
-    json.dumps(info)     # raises now, not at load time, if meta is not plain data
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    sd = {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
-    torch.save({"format": FORMAT, "meta": json.dumps(info), "state_dict": sd}, path)
-    return path
+    return _weights.write(path, FORMAT, net, info)
 
 
 def load_model(path=None, *, map_location: str = "cpu") -> tuple[torch.nn.Module, dict]:
     """(network in eval mode, meta) from a model file (default: the shipped detector)."""
     path = Path(DEFAULT_MODEL if path is None else path)
-    if not path.is_file():
-        raise PerceptionModelError(f"no detector model file at {path}")
+    meta, state_dict = _weights.read(path, FORMAT, PerceptionModelError, "detector model", map_location)
     try:
-        blob = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as e:    # torch raises several types for truncated / foreign files
-        raise PerceptionModelError(f"{path} is not a readable detector model file: {e}") from e
-    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
-        raise PerceptionModelError(f"{path} is not a {FORMAT} model file")
-    try:
-        meta = json.loads(blob["meta"])
         kind, input_type, fusion = meta["kind"], meta["input_type"], meta["fusion"]
-    except (KeyError, TypeError, ValueError) as e:
+    except KeyError as e:
         raise PerceptionModelError(f"{path}: model metadata unreadable ({e})") from e
     if kind not in KINDS:
         raise PerceptionModelError(f"{path}: unknown detector kind {kind!r} (known: {KINDS})")
     try:
         net = build_model(kind, input_type, fusion, **meta.get("kwargs", {}))
-        net.load_state_dict(blob["state_dict"])
+        net.load_state_dict(state_dict)
     except (ValueError, RuntimeError, TypeError, KeyError) as e:
         raise PerceptionModelError(f"{path}: weights do not match a {kind}/{input_type}/{fusion} "
                                    f"detector: {e}") from e
