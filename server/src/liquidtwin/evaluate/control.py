@@ -6,8 +6,17 @@ for 8/8 (thesis: 100 % for 7/8).
 
 ``--scene catching``: slide a cup to catch the stream of a source that pours while it
 moves (``control.catch``); one run per source motion (8). Target: ≥ 98 % caught in every
-case (thesis: 96.5–98.9 %). Table: caught, spilled, the catcher's travel, s per update;
-``catching.png``. The pouring scene's evaluation and the policy are not implemented (issue 7).
+case (thesis: 96.5–98.9 %). Table: caught, spilled, the catcher's travel, s per control;
+``catching.png``. ``--controller policy`` runs the learned policy (``control.policy``; the
+shipped one or ``--policy FILE``) instead of the MPC and marks which motions it was trained
+on.
+
+``--scene pouring``: the thesis's 11 pours (75–275 g in 20 g steps from a full-size cup)
+scaled to the quick cup: 60 ml in the cup, 11 asks from 10 to 30 ml in 2 ml steps
+(``control.pour``, the predicted-drain switch). Table: asked, in the bowl, error, spilled,
+s per update; ``pouring.png``. Target (issue 7): max error ≤ 5 g, mean ≤ 2 g, nothing
+spilled (thesis 11 g / 5 g) — the table also gives the errors relative to each ask, which is
+what carries over between cup sizes.
 
 Table: per target, the fraction of the liquid in the target bowl, in other bowls, spilled;
 the maximum tilt; wall time per MPC update. Results: ``results.json`` + ``control.json``
@@ -24,8 +33,8 @@ import numpy as np
 
 from .cli import save_results
 
-HELP = ("model-predictive control through SPNets: the plate scene (8 target bowls) or catching "
-        "(8 source motions), thesis §8.3.3")
+HELP = ("control through SPNets, thesis §8.3.3: the plate scene (8 target bowls), catching (8 source "
+        "motions; MPC or the learned policy) or pouring (11 asks)")
 GOOD = 0.99
 CATCH_GOOD = 0.98
 
@@ -33,14 +42,22 @@ CATCH_GOOD = 0.98
 def configure(p) -> None:
     p.add_argument("--out", type=Path, default=Path("eval-control"), metavar="DIR",
                    help="where the JSON and PNG results go (default: %(default)s)")
-    p.add_argument("--scene", choices=("plate", "catching"), default="plate", help="(default: %(default)s)")
-    p.add_argument("--quick", action="store_true", help="the quick scene (a few hundred particles)")
-    p.add_argument("--targets", default="0,1,2,3,4,5,6,7", metavar="K[,K]",
-                   help="plate: target bowls; catching: source motions (default: all 8)")
+    p.add_argument("--scene", choices=("plate", "catching", "pouring"), default="plate",
+                   help="(default: %(default)s)")
+    p.add_argument("--quick", action="store_true",
+                   help="the quick scene (a few hundred particles; pouring always runs the quick cup)")
+    p.add_argument("--targets", default=None, metavar="K[,K]",
+                   help="plate: target bowls; catching: source motions (default: all 8); pouring: ml to "
+                        "pour (default: 10,12,…,30)")
     p.add_argument("--seconds", type=float, default=2.5,
                    help="plate: episode length, s (default: %(default)s; catching: the scene's)")
     p.add_argument("--horizon", type=int, default=10, help="MPC horizon, steps (default: %(default)s)")
     p.add_argument("--step-size", type=float, default=0.5, help="MPC step on each control, rad/s (default: %(default)s)")
+    p.add_argument("--controller", choices=("mpc", "policy"), default="mpc",
+                   help="catching: the MPC or the learned policy (default: %(default)s)")
+    p.add_argument("--policy", type=Path, default=None, metavar="FILE",
+                   help="catching policy file (default: the shipped one; train with "
+                        "python -m liquidtwin.control.train_policy)")
     p.add_argument("--seed", type=int, default=0, help="scene draw (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=2, help="targets run in parallel (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
@@ -71,22 +88,96 @@ def run_motion(work) -> dict:
     from ..control.catch import catching_setup, run_catch
     from ..generate.world import model_for
     from ..scenes.fill import fill_container
-    motion, seed, quick, horizon, step_size = work
+    motion, seed, quick, horizon, step_size, policy_file = work
     torch.set_num_threads(1)
+    policy = None
+    if policy_file is not None:
+        from ..control.policy import load_policy
+        policy, _ = load_policy(None if policy_file == "shipped" else policy_file)
     setup = catching_setup(motion, quick, seed)
     model = model_for(setup)
     k = setup.index("source")
     state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                               volume_ml=dict(setup.fills)["source"], settle_s=0.5)
-    r = run_catch(setup, model, state, horizon=horizon, step_size=step_size)
+    r = run_catch(setup, model, state, horizon=horizon, step_size=step_size, policy=policy)
     return {"motion": motion, "direction": setup.notes["direction"], "drift_m_s": setup.notes["drift_m_s"],
             "particles": int(state.x.shape[0]), "caught": r.caught, "left_source": r.left_source,
             "spilled": r.spilled, "xs": r.xs.tolist(), "travel_m": float(r.xs.max() - r.xs.min()),
             "wall_s": r.wall_s, "update_s": r.update_s, "dt": float(setup.dt)}
 
 
+POUR_FILL_ML = 60.0
+POUR_TARGETS_ML = tuple(float(v) for v in range(10, 31, 2))
+
+
+def run_pour_target(work) -> dict:
+    import torch
+
+    from ..control.pour import run_pour
+    from ..generate.catalog import build_setup
+    from ..generate.world import model_for
+    from ..scenes.fill import fill_container
+    target, seed, horizon, step_size = work
+    torch.set_num_threads(1)
+    setup = build_setup("pour_hold", np.random.default_rng(seed), quick=True, source="cup", target="bowl",
+                        fraction=0.9)
+    model = model_for(setup)
+    k = setup.index("source")
+    state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
+                                volume_ml=POUR_FILL_ML, settle_s=0.5)
+    r = run_pour(setup, model, state, target, rep.settled_ml / state.x.shape[0], horizon=horizon,
+                 step_size=step_size)
+    return {"target_ml": target, "particles": int(state.x.shape[0]), "cup_ml": rep.settled_ml,
+            "poured_ml": r.poured_ml, "error_ml": r.poured_ml - target, "spilled_ml": r.spilled_ml,
+            "left_ml": r.left_ml, "switched_s": r.switched_s, "angles_deg": np.asarray(r.angles_deg).tolist(),
+            "seconds": r.seconds, "update_s": r.update_s, "dt": float(model.dt)}
+
+
+def run_pouring(args) -> int:
+    from tqdm.auto import tqdm
+
+    from .tracking import map_jobs
+    if args.targets is None:
+        targets = list(POUR_TARGETS_ML)
+    else:
+        try:
+            targets = [float(t) for t in args.targets.split(",") if t.strip()]
+        except ValueError:
+            raise SystemExit(f"--targets takes ml to pour, got {args.targets!r}") from None
+        if not targets or any(not 0 < t < POUR_FILL_ML for t in targets):
+            raise SystemExit(f"--targets takes ml to pour, each in (0, {POUR_FILL_ML:g}), got {args.targets!r}")
+    work = [(t, args.seed, args.horizon, args.step_size) for t in targets]
+    t0 = time.perf_counter()
+    results = list(tqdm(map_jobs(run_pour_target, work, args.jobs), total=len(work), desc="pouring", unit="pour",
+                        disable=args.no_progress))
+    err = np.array([r["error_ml"] for r in results])
+    spilled = np.array([r["spilled_ml"] for r in results])
+    rel = err / np.array(targets)
+    doc = {"kind": "control", "scene": "pouring", "quick": True, "seed": args.seed, "fill_ml": POUR_FILL_ML,
+           "horizon": args.horizon, "step_size": args.step_size, "wall_s": time.perf_counter() - t0,
+           "max_abs_error_ml": float(np.abs(err).max()), "mean_abs_error_ml": float(np.abs(err).mean()),
+           "mean_error_ml": float(err.mean()), "max_spilled_ml": float(spilled.max()),
+           "max_abs_error_rel": float(np.abs(rel).max()), "mean_abs_error_rel": float(np.abs(rel).mean()),
+           "results": results,
+           "headline": {"name": "pouring max |error|", "value": float(np.abs(err).max()), "unit": "ml"}}
+    out = save_results(args.out, doc)
+    print(f"{'asked':>7}{'poured':>9}{'error':>9}{'rel':>8}{'spilled':>9}{'switch':>8}{'s/update':>10}")
+    for r in results:
+        print(f"{r['target_ml']:>5.0f}ml{r['poured_ml']:>7.2f}ml{r['error_ml']:>+7.2f}ml"
+              f"{100 * r['error_ml'] / r['target_ml']:>+7.1f}%{r['spilled_ml']:>7.2f}ml"
+              f"{(r['switched_s'] or float('nan')):>7.2f}s{r['update_s']:>10.2f}")
+    print(f"\n|error| max {np.abs(err).max():.2f} ml, mean {np.abs(err).mean():.2f} ml (mean signed {err.mean():+.2f}); "
+          f"relative max {100 * np.abs(rel).max():.1f} %, mean {100 * np.abs(rel).mean():.1f} %; spilled up to "
+          f"{spilled.max():.2f} ml. Thesis (75–275 g, full-size cup): max 11 g, mean 5 g, none spilled. "
+          f"{doc['wall_s']:.0f} s. Results in {out}")
+    _plot_pouring(out / "pouring.png", results)
+    return 0
+
+
 def _targets(args) -> list[int]:
     what = "bowl numbers" if args.scene == "plate" else "source motions"
+    if args.targets is None:
+        return list(range(8))
     try:
         targets = [int(t) for t in args.targets.split(",") if t.strip()]
     except ValueError:
@@ -100,22 +191,37 @@ def run_catching(args, targets) -> int:
     from tqdm.auto import tqdm
 
     from .tracking import map_jobs
-    work = [(m, args.seed, args.quick, args.horizon, args.step_size) for m in targets]
+    trained, policy_file = [], None
+    if args.controller == "policy":
+        from ..control.policy import PolicyError, load_policy
+        try:
+            _, meta = load_policy(args.policy)           # fails here, clearly, before any work
+        except PolicyError as e:
+            raise SystemExit(str(e)) from None
+        trained, policy_file = list(meta.get("motions", [])), str(args.policy or "shipped")
+        if meta.get("quick", True) != args.quick:
+            print(f"note: the policy was trained on the {'quick' if meta.get('quick', True) else 'full'} scene")
+    work = [(m, args.seed, args.quick, args.horizon, args.step_size, policy_file) for m in targets]
     t0 = time.perf_counter()
     results = list(tqdm(map_jobs(run_motion, work, args.jobs), total=len(work), desc="catching", unit="motion",
                         disable=args.no_progress))
+    for r in results:
+        r["trained_on"] = r["motion"] in trained
     good = sum(r["caught"] >= CATCH_GOOD for r in results)
-    doc = {"kind": "control", "scene": "catching", "quick": args.quick, "seed": args.seed, "horizon": args.horizon,
+    doc = {"kind": "control", "scene": "catching", "controller": args.controller, "policy": policy_file,
+           "trained_motions": trained, "quick": args.quick, "seed": args.seed, "horizon": args.horizon,
            "step_size": args.step_size, "wall_s": time.perf_counter() - t0, "results": results,
            "headline": {"name": "catching motions with >= 98 % caught", "value": good, "unit": f"of {len(results)}"}}
     out = save_results(args.out, doc)
-    print(f"{'motion':>6}{'pours to':>9}{'lip drift':>11}{'caught':>8}{'spilled':>9}{'travel':>8}{'s/update':>10}")
+    print(f"{'motion':>6}{'pours to':>9}{'lip drift':>11}{'caught':>8}{'spilled':>9}{'travel':>8}{'s/control':>10}"
+          + ("   policy" if trained else ""))
     for r in results:
         print(f"{r['motion']:>6}{('-x' if r['direction'] < 0 else '+x'):>9}{r['drift_m_s']:>9.2f}m/s"
-              f"{100 * r['caught']:>7.1f}%{100 * r['spilled']:>8.1f}%{100 * r['travel_m']:>6.1f}cm{r['update_s']:>10.2f}")
-    print(f"\n{good}/{len(results)} motions with ≥ 98 % caught (thesis: 96.5–98.9 %); {doc['wall_s']:.0f} s. "
-          f"Results in {out}")
-    _plot_catching(out / "catching.png", results)
+              f"{100 * r['caught']:>7.1f}%{100 * r['spilled']:>8.1f}%{100 * r['travel_m']:>6.1f}cm{r['update_s']:>10.3f}"
+              + (("   trained" if r["trained_on"] else "   unseen") if trained else ""))
+    print(f"\n{args.controller}: {good}/{len(results)} motions with ≥ 98 % caught (thesis: 96.5–98.9 %); "
+          f"{doc['wall_s']:.0f} s. Results in {out}")
+    _plot_catching(out / "catching.png", results, args.controller)
     return 0
 
 
@@ -123,9 +229,11 @@ def run(args) -> int:
     from tqdm.auto import tqdm
 
     from .tracking import map_jobs
-    targets = _targets(args)
     if not args.seconds > 0 or args.horizon < 1 or not args.step_size > 0:
         raise SystemExit("--seconds and --step-size must be > 0, --horizon >= 1")
+    if args.scene == "pouring":
+        return run_pouring(args)
+    targets = _targets(args)
     if args.scene == "catching":
         return run_catching(args, targets)
     work = [(t, args.seed, args.quick, args.seconds, args.horizon, args.step_size) for t in targets]
@@ -187,10 +295,35 @@ def _plot(path: Path, results: list[dict], seconds: float) -> None:
     _figure(path, results, "target", GOOD, "target bowl", "Plate scene: MPC through SPNets", draw)
 
 
-def _plot_catching(path: Path, results: list[dict]) -> None:
+def _plot_catching(path: Path, results: list[dict], controller: str = "mpc") -> None:
     def draw(a):
         for r in results:
             xs = np.asarray(r["xs"])
             a.plot(np.arange(1, len(xs) + 1) * r["dt"], 100 * xs, label=f"motion {r['motion']}")
         a.set_ylabel("catcher x (cm)")
-    _figure(path, results, "motion", CATCH_GOOD, "source motion", "Catching: MPC through SPNets", draw)
+    title = "Catching: " + ("MPC through SPNets" if controller == "mpc" else "policy learned through SPNets")
+    _figure(path, results, "motion", CATCH_GOOD, "source motion", title, draw)
+
+
+def _plot_pouring(path: Path, results: list[dict]) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    for r in results:
+        ang = np.asarray(r["angles_deg"])
+        a.plot(np.arange(1, len(ang) + 1) * r["dt"], ang, label=f"{r['target_ml']:g} ml")
+    a.set_xlabel("time (s)")
+    a.set_ylabel("cup tilt (deg)")
+    a.legend(fontsize=7, ncol=2)
+    asked = np.array([r["target_ml"] for r in results])
+    b.plot(asked, asked, "k:", lw=0.8, label="asked")
+    b.plot(asked, [r["poured_ml"] for r in results], "o-", label="in the bowl")
+    b.bar(asked, [r["spilled_ml"] for r in results], width=0.8, color="tab:red", alpha=0.6, label="spilled")
+    b.set_xlabel("asked (ml)")
+    b.set_ylabel("ml")
+    b.legend(fontsize=8)
+    fig.suptitle("Pouring: MPC through SPNets, quick cup (60 ml)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
