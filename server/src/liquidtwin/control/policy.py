@@ -22,10 +22,10 @@ convolution. Without it the first linear layer has 10·59·79·100 = 4.66 M weig
 in half precision); with it 1.13 M (2.3 MB). ``pool=1`` is the thesis's network. A 4×4 pool
 (266 k weights) was tried first and learned nothing but a constant drift: its cells are 5 cm
 wide, coarser than the offsets between stream and catcher it has to tell apart. And a change in sampling: the
-thesis draws the time step uniformly; here 3 in 4 draws come from the steps where liquid
+thesis draws the time step uniformly; here half the draws come from the steps where liquid
 falls (``Demonstration.active``), because in this scene the stream lasts about a quarter of
-the episode and the rest teaches only "hold still" (which the remaining uniform draws keep
-teaching).
+the episode and the rest teaches only "hold still" or "go where it will land" (which the
+other, uniform, draws keep teaching).
 """
 
 from __future__ import annotations
@@ -76,6 +76,8 @@ class CatchPolicy(nn.Module):
         h, w = (HEIGHT - 3) // 2 + 1, (WIDTH - 3) // 2 + 1
         self.hidden = nn.Linear(10 * (h // pool) * (w // pool), hidden)
         self.out = nn.Linear(hidden, 1)
+        nn.init.zeros_(self.out.weight)      # starts by holding still (a random start drifted)
+        nn.init.zeros_(self.out.bias)
         self.camera = observation_camera()
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
@@ -181,11 +183,11 @@ class TrainLog:
 
 
 def train(policy: CatchPolicy, model, demos: list, *, iterations: int = 300, lr: float = 1e-4,
-          rollout: int = 8, noise_m: float = 0.05, active_share: float = 0.75, seed: int = 0,
-          progress: bool = True) -> TrainLog:
-    """Train ``policy`` in place (module doc): per iteration one sampled step of every
-    demonstration (with probability ``active_share`` one where liquid falls, else any), the
-    catcher at its x + N(0, ``noise_m``²), ``rollout`` steps, Adam."""
+          rollout: int = 3, noise_m: float = 0.05, active_share: float = 0.5, per_demo: int = 4,
+          seed: int = 0, progress: bool = True) -> TrainLog:
+    """Train ``policy`` in place (module doc): per iteration ``per_demo`` sampled steps of
+    every demonstration (each with probability ``active_share`` one where liquid falls, else
+    any), the catcher at its x + N(0, ``noise_m``²), ``rollout`` steps, one Adam step."""
     from tqdm.auto import tqdm
     if iterations < 1 or rollout < 1 or not lr > 0 or not noise_m >= 0:
         raise PolicyError("iterations and rollout must be >= 1, lr > 0, noise >= 0")
@@ -197,7 +199,7 @@ def train(policy: CatchPolicy, model, demos: list, *, iterations: int = 300, lr:
     for _ in bar:
         opt.zero_grad()
         total = 0.0
-        for d in demos:
+        for d in [d for d in demos for _ in range(per_demo)]:
             active = d.active(model)
             active = active[active < len(d.states) - rollout]
             if active.size and rng.random() < active_share:
@@ -205,7 +207,7 @@ def train(policy: CatchPolicy, model, demos: list, *, iterations: int = 300, lr:
             else:
                 i = int(rng.integers(0, len(d.states) - rollout))
             x0 = float(d.xs[i] + rng.normal(0.0, noise_m))
-            total = total + rollout_loss(policy, model, d, i, x0, rollout) / (rollout * len(demos))
+            total = total + rollout_loss(policy, model, d, i, x0, rollout) / (rollout * len(demos) * per_demo)
         total.backward()
         opt.step()
         losses.append(float(total.detach()))

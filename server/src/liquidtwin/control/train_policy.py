@@ -59,7 +59,8 @@ def load_demos(motions: list[int], quick: bool, seed: int, horizon: int, step_si
     from ..sim import FluidState
 
     def path(m):
-        return None if cache is None else cache / f"catch_demo2_m{m}_s{seed}_{'quick' if quick else 'full'}_h{horizon}.npz"
+        return None if cache is None else \
+            cache / f"catch_demo2_m{m}_s{seed}_{'quick' if quick else 'full'}_h{horizon}_step{step_size:g}.npz"
 
     todo = [m for m in motions if path(m) is None or not path(m).is_file()]
     raw = {}
@@ -91,18 +92,20 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, required=True, help="policy file to write (.pt)")
     p.add_argument("--motions", default="0,1,2,3", metavar="K[,K]",
                    help="training source motions (default: %(default)s, the pours towards −x)")
-    p.add_argument("--iterations", type=int, default=200, help="Adam steps (default: %(default)s; thesis 1200)")
+    p.add_argument("--iterations", type=int, default=120, help="Adam steps (default: %(default)s; thesis 1200)")
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default: %(default)s; thesis 2.5e-5)")
-    p.add_argument("--rollout", type=int, default=8, help="policy steps per rollout (default: %(default)s)")
+    p.add_argument("--rollout", type=int, default=3, help="policy steps per rollout (default: %(default)s)")
+    p.add_argument("--per-demo", type=int, default=4,
+                   help="sampled steps per demonstration per iteration (default: %(default)s; thesis 1)")
     p.add_argument("--noise", type=float, default=0.05, help="catcher start noise, m (default: %(default)s)")
-    p.add_argument("--active-share", type=float, default=0.75,
+    p.add_argument("--active-share", type=float, default=0.5,
                    help="share of the sampled steps drawn where liquid falls (default: %(default)s; thesis: "
                         "uniform draws)")
     p.add_argument("--pool", type=int, default=2, help="average pool after the conv (default: %(default)s; "
                                                        "1 = the thesis's 4.7 M-weight network)")
     p.add_argument("--full", action="store_true", help="the full-size scene (default: the quick one)")
     p.add_argument("--horizon", type=int, default=10, help="demonstrating MPC's horizon (default: %(default)s)")
-    p.add_argument("--step-size", type=float, default=0.5, help="demonstrating MPC's step (default: %(default)s)")
+    p.add_argument("--step-size", type=float, default=0.1, help="demonstrating MPC's step (default: %(default)s)")
     p.add_argument("--demos", type=Path, default=Path("catch-demos"), metavar="DIR",
                    help="cache of MPC demonstrations (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="scene draw and sampling (default: %(default)s)")
@@ -124,9 +127,9 @@ def main(argv=None) -> int:
     torch.manual_seed(a.seed)
     policy = CatchPolicy(pool=a.pool)
     log = train(policy, model, demos, iterations=a.iterations, lr=a.lr, rollout=a.rollout, noise_m=a.noise,
-                active_share=a.active_share, seed=a.seed, progress=not a.no_progress)
+                active_share=a.active_share, per_demo=a.per_demo, seed=a.seed, progress=not a.no_progress)
     meta = {"motions": motions, "quick": not a.full, "seed": a.seed, "iterations": a.iterations, "lr": a.lr,
-            "rollout": a.rollout, "noise_m": a.noise, "active_share": a.active_share,
+            "rollout": a.rollout, "noise_m": a.noise, "active_share": a.active_share, "per_demo": a.per_demo,
             "parameters": parameter_count(policy)}
     save_policy(a.out, policy.eval(), meta)
     curve = a.out.with_suffix(".json")
