@@ -118,10 +118,6 @@ class CatchLoss:
         b = setup.objects[dst].model.cavity.bounds
         self.r_open = 0.5 * float(min(b[1, 0] - b[0, 0], b[1, 2] - b[0, 2]))
 
-    def falling(self, s) -> bool:
-        """Whether enough of the liquid falls for the landing loss (else: hold still)."""
-        return int((by_ids(s, self.away)[0][:, 1] > self.rim_y).sum()) >= FALLING_MIN * self.n
-
     def landing(self, s) -> tuple[torch.Tensor, torch.Tensor] | None:
         """(x, z) m where each falling particle crosses the catcher's rim height (ballistic),
         or None while (next to) nothing falls (differentiable). Not counted: particles over
@@ -201,10 +197,12 @@ def run_catch(setup, model, state, *, horizon: int = 10, step_size: float = 0.1,
         t = i * model.dt
         space = catch_space(setup, t, horizon if mpc else 1, model.dt)
         if mpc is not None or keep_states:
-            if CatchLoss(setup, model, state, 0.0).landing(state) is not None:
+            loss = CatchLoss(setup, model, state, float(q[0]))
+            if loss.landing(state) is not None:
                 aim = float("nan")                                  # the stream is here: aim at it
             elif i % LOOKAHEAD_EVERY == 0:
                 aim = first_landing(setup, model, state, t, float(q[0]))
+            loss.aim = aim if np.isfinite(aim) else None
         if keep_states:
             states.append(state)
             aims.append(aim)
@@ -212,7 +210,7 @@ def run_catch(setup, model, state, *, horizon: int = 10, step_size: float = 0.1,
             with torch.no_grad():
                 u = policy.control(state.x, q, setup)
         else:
-            mpc.space, mpc.loss = space, CatchLoss(setup, model, state, float(q[0]), aim)
+            mpc.space, mpc.loss = space, loss
             u, _ = mpc.update(state, q)
         q = space.positions(q, u[None], model.dt)[0]
         poses = space.base_poses[0].clone()                         # the scene at t + dt …

@@ -131,7 +131,7 @@ class Demonstration:
         """Indices of the steps where liquid falls (the landing loss applies)."""
         if getattr(self, "_active", None) is None:
             self._active = np.array([i for i, s in enumerate(self.states) if s is not None and
-                                     CatchLoss(self.setup, model, s, 0.0).falling(s)], dtype=np.int64)
+                                     CatchLoss(self.setup, model, s, 0.0).landing(s) is not None], dtype=np.int64)
         return self._active
 
 
