@@ -20,6 +20,7 @@ from liquidtwin.control.pour import run_pour
 from liquidtwin.generate.catalog import build_setup
 from liquidtwin.generate.world import model_for
 from liquidtwin.scenes.fill import fill_container
+from liquidtwin.scenes.liquid_level import held
 
 
 def main() -> None:
@@ -30,6 +31,11 @@ def main() -> None:
     p.add_argument("--no-anticipate", action="store_true",
                    help="switch when the asked amount has left the cup (the thesis's rule) instead of "
                         "predicting what still flows while the cup turns back")
+    p.add_argument("--approach-rate", type=float, default=None, metavar="RAD_S",
+                   help="cap on the forward tilt rate from 20 deg on, rad/s (default: none, the full 2 rad/s)")
+    p.add_argument("--max-seconds", type=float, default=6.0, help="pour length limit, s (default: %(default)s)")
+    p.add_argument("--trace", type=float, default=None, metavar="S",
+                   help="every S seconds print the tilt and where the liquid is (cup, bowl, neither)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--no-history", action="store_true")
     a = p.parse_args()
@@ -41,13 +47,25 @@ def main() -> None:
                                 volume_ml=a.fill, settle_s=0.5)
     mlpp = rep.settled_ml / state.x.shape[0]
     print(f"cup: {state.x.shape[0]} particles, {rep.settled_ml:.1f} ml settled")
+    src, dst = setup.index("source"), setup.index("target")
+    every = None if a.trace is None else max(1, int(round(a.trace / model.dt)))
+
+    def trace(i, s, q, ctrl):
+        if every is None or i % every:
+            return
+        cup = int(held(model, s, src, setup.objects[src].model)[0].sum()) * mlpp
+        bowl = int(held(model, s, dst, setup.objects[dst].model)[0].sum()) * mlpp
+        print(f"  {(i + 1) * model.dt:5.2f} s  tilt {np.degrees(float(q)):5.1f} deg  cup {cup:5.1f}  bowl {bowl:5.1f}  "
+              f"neither {rep.settled_ml - cup - bowl:5.1f} ml{'  (returning)' if ctrl.done else ''}", flush=True)
+
     for target in (float(t) for t in a.targets.split(",")):
         t0 = time.perf_counter()
         r = run_pour(setup, model, state, target, mlpp, step_size=a.step_size, anticipate=not a.no_anticipate,
-                     progress=True)
+                     progress=a.trace is None, approach_rate=a.approach_rate, max_seconds=a.max_seconds,
+                     on_step=trace)
         rec = {"what": "mpc_pour", "particles": int(state.x.shape[0]), "target_ml": target,
                "poured_ml": r.poured_ml, "left_ml": r.left_ml, "spilled_ml": r.spilled_ml,
-               "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "max_angle_deg": float(np.max(r.angles_deg)),
+               "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "approach_rate": a.approach_rate, "max_angle_deg": float(np.max(r.angles_deg)),
                "update_s": r.update_s, "wall_s": time.perf_counter() - t0, "peak_mem_bytes": None}
         emit(rec, not a.no_history)
 

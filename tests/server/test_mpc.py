@@ -137,6 +137,20 @@ def test_a_pour_tilts_the_cup_and_refuses_what_it_cannot_pour(cup):
     assert r.angles_deg[-1] > 10.0 and np.all(np.diff(r.angles_deg) >= -1e-9)
 
 
+def test_an_approach_rate_caps_the_forward_tilt_past_20_degrees(cup):
+    from liquidtwin.control.pour import MAX_RATE, MIN_CHECK_TILT, run_pour
+    setup, model, state, mlpp = cup
+    with pytest.raises(ControlError, match="approach_rate"):
+        run_pour(setup, model, state, 10.0, mlpp, approach_rate=0.0)
+    r = run_pour(setup, model, state, 10.0, mlpp, max_seconds=0.3, approach_rate=0.5)
+    rate = np.diff(np.radians(np.concatenate([[0.0], r.angles_deg]))) / model.dt       # rad/s of each step
+    before = np.radians(r.angles_deg[:-1]) <= MIN_CHECK_TILT                            # the angle a control saw
+    print(f"\nrates below 20°: max {rate[1:][before].max():.2f}; above: {rate[1:][~before].round(2)} rad/s")
+    assert rate[1:][before].max() > 0.9 * MAX_RATE                   # full speed up to 20°
+    assert (~before).sum() >= 5 and rate[1:][~before].max() <= 0.5 + 1e-9
+    assert r.angles_deg[-1] > math.degrees(MIN_CHECK_TILT)
+
+
 def test_tasks_find_their_particles_by_label_after_the_rows_are_resorted(plate):
     """A task picks particles on one state (a row mask) and must find the same particles in
     every rolled-out state: a step re-sorts the rows by cell, and removed particles leave gaps

@@ -15,6 +15,11 @@ land. Once that reaches the ask, a second rollout turns back now, and the contro
 now or at the next update, whichever lands closer to the ask (an update is one model step
 here, one camera frame in a session: several steps). The return is that same max-rate
 manoeuvre (what was predicted is what is done).
+
+``approach_rate`` (off by default) caps the forward tilt rate from ``MIN_CHECK_TILT`` on, so
+the cup reaches the angle where liquid starts to flow slowly: at the full rate the liquid
+lags and then leaves in one surge (on the quick cup, 60 ml, ~21 ml in 0.2 s at 2 rad/s; ~8 ml
+at 0.5 rad/s), which lands hard and splashes out of the bowl. The return keeps the full rate.
 """
 
 from __future__ import annotations
@@ -113,7 +118,11 @@ class PourMPC:
 
     def __init__(self, model, space: ControlSpace, lip: torch.Tensor, src: int, dst: int, src_obj, dst_obj,
                  target_ml: float, ml_per_particle: float, *, state,
-                 horizon: int = 10, step_size: float = 0.5, anticipate: bool = True):
+                 horizon: int = 10, step_size: float = 0.5, anticipate: bool = True,
+                 approach_rate: float | None = None):
+        if approach_rate is not None and not (math.isfinite(approach_rate) and approach_rate > 0):
+            raise ControlError(f"approach_rate must be a positive number of rad/s, got {approach_rate}")
+        self.approach_rate = None if approach_rate is None else float(approach_rate)
         self.model, self.src, self.dst, self.src_obj, self.dst_obj = model, src, dst, src_obj, dst_obj
         self.target_ml, self.ml, self.anticipate = float(target_ml), float(ml_per_particle), bool(anticipate)
         self.base_ml = float(held(model, state, dst, dst_obj)[0].sum()) * self.ml
@@ -156,6 +165,8 @@ class PourMPC:
             return self.mpc.update(state, q)[0]
         self.ids = state.ids[torch.as_tensor(held_now)]
         u = self.mpc.update(state, q)[0]              # what runs until the next update, unless we switch
+        if self.approach_rate is not None and float(q[0]) > MIN_CHECK_TILT:
+            u = torch.clamp(u, max=self.approach_rate)
         near = self.predicted >= NEAR * self.target_ml              # close: check every update
         due = self.updates == 1 or self.steps // CHECK_EVERY > prev // CHECK_EVERY
         if float(q[0]) > MIN_CHECK_TILT and (near or due):
@@ -183,8 +194,10 @@ class PourMPC:
 
 
 def run_pour(setup, model, state, target_ml: float, ml_per_particle: float, *, max_seconds: float = 6.0,
-             horizon: int = 10, step_size: float = 0.5, anticipate: bool = True, progress: bool = False) -> PourRun:
-    """Pour ``target_ml`` from the scene's source into its target from ``state``."""
+             horizon: int = 10, step_size: float = 0.5, anticipate: bool = True, progress: bool = False,
+             approach_rate: float | None = None, on_step=None) -> PourRun:
+    """Pour ``target_ml`` from the scene's source into its target from ``state`` (``approach_rate``:
+    :class:`PourMPC`). ``on_step(i, state, q, controller)`` is called after every step."""
     src, dst = setup.index("source"), setup.index("target")
     src_obj, dst_obj = setup.objects[src].model, setup.objects[dst].model
     n = int(state.x.shape[0])
@@ -193,7 +206,7 @@ def run_pour(setup, model, state, target_ml: float, ml_per_particle: float, *, m
         raise ControlError(f"cannot pour {target_ml} ml: the cup holds {have:.1f} ml")
     space, lip = lip_space(setup)
     ctrl = PourMPC(model, space, lip, src, dst, src_obj, dst_obj, target_ml, ml_per_particle, state=state,
-                   horizon=horizon, step_size=step_size, anticipate=anticipate)
+                   horizon=horizon, step_size=step_size, anticipate=anticipate, approach_rate=approach_rate)
     q = torch.zeros(1, dtype=torch.float64)
     angles, switched = [], None
     steps = int(round(max_seconds / model.dt))
@@ -214,6 +227,8 @@ def run_pour(setup, model, state, target_ml: float, ml_per_particle: float, *, m
         with torch.no_grad():
             state = step(model, state, space.poses(q[None])[0].to(state.x.dtype))
         angles.append(math.degrees(float(q)))
+        if on_step is not None:
+            on_step(i, state, q, ctrl)
     wall = time.perf_counter() - t0
     in_src = held(model, state, src, src_obj)[0]
     in_dst = held(model, state, dst, dst_obj)[0]
