@@ -1,6 +1,8 @@
-"""Does the model pour what the benchmark's world pours? The share of the source's liquid that
-has left it at the end of each pouring-benchmark recording: in the world (the truth sidecar;
-scoring only) and in liquidtwin's open-loop model started from the recording's stated fill.
+"""Does the model pour what the benchmark's world pours? At the end of each pouring-benchmark
+recording, the share of the liquid that has left the source, and the share that is in
+neither the source nor the target (spilled: splashed out, missed the bowl, or fell off): in
+the world (the truth sidecar; scoring only) and in liquidtwin's open-loop model started from
+the recording's stated fill.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/fill_pour_share.py --seed 100 --kinds partial hold \
         --data eval-data [--no-history]
@@ -30,13 +32,13 @@ from liquidtwin.scenes.liquid_level import held
 from liquidtwin.sim import FluidState
 
 
-def left_share(model, x: np.ndarray, poses: np.ndarray, k: int, obj) -> float:
-    """Share of the particles x (N, 3) that container k (pose poses[k]) does not hold."""
+def held_share(model, x: np.ndarray, poses: np.ndarray, k: int, obj) -> float:
+    """Share of the particles x (N, 3) that container k (pose poses[k]) holds."""
     if len(x) == 0:
         return 0.0
     s = FluidState(torch.as_tensor(x, dtype=torch.float64), torch.zeros(len(x), 3, dtype=torch.float64),
                    torch.arange(len(x)), torch.as_tensor(poses, dtype=torch.float64), 0.0)
-    return 1.0 - float(held(model, s, k, obj)[0].mean())
+    return float(held(model, s, k, obj)[0].mean())
 
 
 def measure(path: Path) -> dict:
@@ -46,15 +48,18 @@ def measure(path: Path) -> dict:
     name = eng.container_names[0] if "source" not in eng.container_names else "source"
     k = eng.object_names.index(name)
     model = scene.model
+    dst = eng.object_names.index("target")
     replay(rec, eng)
     poses = np.asarray(eng._frame_poses, float)
-    model_left = left_share(model, eng.positions(), poses, k, scene.objects[k]) if eng.n_particles else 0.0
     n0 = eng.n_particles + eng.lost_particles
-    model_left = 1.0 - (1.0 - model_left) * eng.n_particles / max(n0, 1)      # culled ones left too
     truth = np.load(path.with_suffix(".truth.npz"))
-    world_left = left_share(model, truth["particles"][-1], truth["true_poses"][-1], k, scene.objects[k])
-    return {"world_left": world_left, "model_left": model_left, "model_particles": n0,
-            "world_particles": int(truth["particles"].shape[1])}
+    out = {"model_particles": n0, "world_particles": int(truth["particles"].shape[1])}
+    for who, x, P, n in (("model", eng.positions(), poses, n0),
+                         ("world", truth["particles"][-1], truth["true_poses"][-1], truth["particles"].shape[1])):
+        # culled particles (fell below every object) left the source and missed the target
+        in_src, in_dst = (len(x) / max(n, 1) * held_share(model, x, P, j, scene.objects[j]) for j in (k, dst))
+        out[f"{who}_left"], out[f"{who}_spilled"] = 1.0 - in_src, 1.0 - in_src - in_dst
+    return out
 
 
 def main() -> None:
@@ -70,13 +75,14 @@ def main() -> None:
     case_list = cases(quick=True, trials=1, sources=tuple(a.sources), fills=(0.0,) + FILLS, kinds=tuple(a.kinds),
                       base_seed=a.seed)
     paths = ensure(case_list, a.data, jobs=a.jobs)
-    print(f"{'case':28s} {'hidden effect':24s} {'world poured':>12s} {'model poured':>12s}")
+    print(f"{'case':28s} {'hidden effect':24s} {'poured: world':>13s} {'model':>6s} {'spilled: world':>15s} {'model':>6s}")
     for case, path in zip(case_list, paths):
         if case.fraction == 0:                          # the fill benchmark's empty cases: nothing to pour
             continue
         r = measure(Path(path))
-        print(f"{case.name:28s} {f'{case.effect} {case.effect_value:.3g}':24s} {100 * r['world_left']:11.0f}% "
-              f"{100 * r['model_left']:11.0f}%", flush=True)
+        print(f"{case.name:28s} {f'{case.effect} {case.effect_value:.3g}':24s} {100 * r['world_left']:12.0f}% "
+              f"{100 * r['model_left']:5.0f}% {100 * r['world_spilled']:14.0f}% {100 * r['model_spilled']:5.0f}%",
+              flush=True)
         emit({"what": "fill_pour_share", "case": case.name, "effect": case.effect, "effect_value": case.effect_value,
               **r}, not a.no_history)
 

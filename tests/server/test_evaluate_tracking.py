@@ -115,3 +115,21 @@ def test_table_pools_frames_per_row_and_marks_missing_columns():
     assert tab["60 %"]["a"] is None and all(tab[r]["b"] is None for r in ROWS)
     text = format_table(tab, ["a", "b"], 50, "note")
     assert "n/a" in text and "40.0 %" in text
+
+
+def test_iterations_option_sets_the_analysing_models_solver(evaluated):
+    """``--iterations N`` is a model setting: the engine that replays the recording solves N
+    PBF iterations per step (the recording's spec says 4); nonsense is refused."""
+    from liquidtwin.evaluate.cli import with_model_options
+    from liquidtwin.evaluate.replay import engine_for
+    from liquidtwin.recordings import read_recording
+    _, data, doc = evaluated
+    path = doc["cases"][0]["recording"]
+    assert engine_for(read_recording(path, images=False), "open_loop")._scene.model.iterations == 4
+    rec = with_model_options(read_recording(path, images=False), 6)
+    assert rec.spec.simulation.iterations == 6
+    assert engine_for(rec, "open_loop")._scene.model.iterations == 6
+    assert with_model_options(read_recording(path, images=False), None).spec.simulation.iterations == 4
+    for bad in (0, -2, 2.5, True):
+        with pytest.raises(SystemExit, match="--iterations"):
+            with_model_options(rec, bad)

@@ -53,6 +53,23 @@ def add_common(p: argparse.ArgumentParser, *, out: str) -> None:
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
 
 
+def add_model_options(p: argparse.ArgumentParser) -> None:
+    """Options of the model that analyses each recording (kinds that replay recordings)."""
+    p.add_argument("--iterations", type=int, default=None, metavar="N",
+                   help="PBF solver iterations of the analysing model (default: the recording's scene spec; "
+                        "generated recordings say 4). A model setting, not the world's truth")
+
+
+def with_model_options(rec, iterations: int | None):
+    """``rec`` with its scene spec's solver iterations set to ``iterations`` (None: unchanged)."""
+    if iterations is not None:
+        if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
+            raise SystemExit(f"--iterations must be a whole number >= 1, got {iterations!r}")
+        if rec.spec is not None:
+            rec.spec.simulation.iterations = int(iterations)
+    return rec
+
+
 def selected_cases(args, **kw) -> list:
     """The benchmark cases the common options select (``--quick/--trials/--seed``, then
     ``--cases N`` first ones); checks ``--cases`` and ``--frames``. ``kw`` go to ``cases``."""

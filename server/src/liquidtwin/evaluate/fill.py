@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .benchmark import cases, ensure
-from .cli import add_common, save_results
+from .cli import add_common, add_model_options, save_results, with_model_options
 
 HELP = "initial-fill inference (empty/30/60/90 %) on the pouring benchmark (thesis Fig. 7.6)"
 FILLS = (0.0, 0.3, 0.6, 0.9)
@@ -31,6 +31,7 @@ MODES = ("open_loop", "warp_field")
 
 def configure(p) -> None:
     add_common(p, out="eval-fill")
+    add_model_options(p)
     p.add_argument("--trackers", nargs="+", default=list(MODES), choices=["open_loop", "warp_field", "map_filter"],
                    metavar="T", help="scoring modes to compare (default: open_loop warp_field)")
     p.add_argument("--sources", nargs="+", default=["cup", "bottle"], choices=["cup", "bottle"], metavar="S",
@@ -61,7 +62,7 @@ def run(args) -> int:
     names = [fill_name(f) for f in FILLS]
     results = []
     for case, path in tqdm(list(zip(case_list, paths)), desc="infer", unit="rec", disable=args.no_progress):
-        rec = read_recording(path, images=False)
+        rec = with_model_options(read_recording(path, images=False), args.iterations)
         truth = fill_name(case.fraction)                          # scoring only
         row = {"case": case.as_dict(), "recording": str(path), "truth": truth, "modes": {}}
         for mode in args.trackers:
@@ -77,6 +78,7 @@ def run(args) -> int:
     text = format_table(results, args.trackers, names, summary, args.quick, delta, args)
     print(text)
     doc = {"kind": "fill", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed, "delta": delta,
+           "iterations": args.iterations,
            "scale": scale, "frames": args.frames, "trackers": list(args.trackers), "hypotheses": names,
            "summary": summary, "table_text": text, "cases": results}
     best = max(summary, key=lambda m: summary[m]["mean_p_truth"])
@@ -104,7 +106,8 @@ def format_table(results, modes, names, summary, quick, delta, args) -> str:
         lines.append(f"mean probability on the truth {s['mean_p_truth']:.3f}; truth ranked first "
                      f"{s['ranked_first']}/{s['sequences']}")
     lines.append(f"{'quick' if quick else 'full'} benchmark, trials {args.trials}, base seed {args.seed}, "
-                 f"delta = {delta}" + (f", first {args.frames} pose samples" if args.frames else ""))
+                 f"delta = {delta}" + (f", first {args.frames} pose samples" if args.frames else "")
+                 + (f", model solver iterations {args.iterations}" if args.iterations else ""))
     return "\n".join(lines)
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .benchmark import ensure
-from .cli import add_common, save_results, selected_cases
+from .cli import add_common, add_model_options, save_results, selected_cases, with_model_options
 from .replay import MODES, engine_for, replay
 
 HELP = "closed-loop tracking IOU per tracker on the pouring benchmark (thesis Fig. 7.5)"
@@ -37,6 +37,7 @@ ROWS = ("cup", "bottle", "30 %", "60 %", "90 %", "overall")
 
 def configure(p) -> None:
     add_common(p, out="eval-tracking")
+    add_model_options(p)
     p.add_argument("--trackers", nargs="+", default=list(TRACKERS), choices=list(MODES), metavar="T",
                    help=f"trackers to compare, from {', '.join(MODES)} (default: all)")
     p.add_argument("--cases", type=int, default=None, metavar="N", help="only the first N cases (smoke runs)")
@@ -125,11 +126,13 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
     return out
 
 
-def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: bool = True) -> dict:
-    """{tracker or "ceiling": {"t_s", "iou", "observed_px"} or None (tracker not available)}."""
+def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: bool = True,
+                  iterations: int | None = None) -> dict:
+    """{tracker or "ceiling": {"t_s", "iou", "observed_px"} or None (tracker not available)};
+    ``iterations``: the model's solver iterations (None: the recording's)."""
     from ..recordings import read_recording
     from ..session.errors import INFEASIBLE, EngineError
-    rec = read_recording(path, images=False)
+    rec = with_model_options(read_recording(path, images=False), iterations)
     series, notes = {}, {}
     engine = None
     for t in trackers:
@@ -154,7 +157,7 @@ def run(args) -> int:
     case_list = selected_cases(args)
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
-    work = [(str(p), tuple(trackers), args.frames) for p in paths]
+    work = [(str(p), tuple(trackers), args.frames, args.iterations) for p in paths]
     bar = tqdm(total=len(work), desc="replay", unit="case", disable=args.no_progress)
     for case, path, r in zip(case_list, paths, map_jobs(_evaluate_one, work, args.jobs)):
         bar.update()
@@ -165,13 +168,15 @@ def run(args) -> int:
     tab = table(results, columns, args.min_px)
     note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
             f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else "")
+            + (f", model solver iterations {args.iterations}" if args.iterations else "")
             + "; ceiling = the true particles drawn as the model (scoring only)")
     text = format_table(tab, columns, args.min_px, note)
     print(text)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = {"kind": "tracking", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
-           "frames": args.frames, "min_px": args.min_px, "trackers": trackers, "columns": columns,
+           "frames": args.frames, "iterations": args.iterations, "min_px": args.min_px, "trackers": trackers,
+           "columns": columns,
            "table": tab, "table_text": text, "cases": results}
     closed = [c for c in trackers if c != "open_loop" and tab["overall"].get(c) is not None]
     best = max(closed, key=lambda c: tab["overall"][c]) if closed else None
@@ -185,8 +190,8 @@ def run(args) -> int:
 def _evaluate_one(job) -> dict:
     import torch
     torch.set_num_threads(1)
-    path, trackers, frames = job
-    return evaluate_case(Path(path), trackers, frames=frames)
+    path, trackers, frames, iterations = job
+    return evaluate_case(Path(path), trackers, frames=frames, iterations=iterations)
 
 
 def map_jobs(fn, work: list, jobs: int):
