@@ -26,6 +26,7 @@ where the liquid went).
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -60,6 +61,9 @@ def configure(p) -> None:
     p.add_argument("--policy", type=Path, default=None, metavar="FILE",
                    help="catching policy file (default: the shipped one; train with "
                         "python -m liquidtwin.control.train_policy)")
+    p.add_argument("--approach-rate", type=float, default=None, metavar="RAD_S",
+                   help="pouring: cap on the cup's forward tilt rate from 20 deg on, rad/s (default: none, "
+                        "the full 2 rad/s; see control.pour)")
     p.add_argument("--seed", type=int, default=0, help="scene draw (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=2, help="targets run in parallel (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
@@ -119,7 +123,7 @@ def run_pour_target(work) -> dict:
     from ..generate.catalog import build_setup
     from ..generate.world import model_for
     from ..scenes.fill import fill_container
-    target, seed, horizon, step_size = work
+    target, seed, horizon, step_size, approach_rate = work
     torch.set_num_threads(1)
     setup = build_setup("pour_hold", np.random.default_rng(seed), quick=True, source="cup", target="bowl",
                         fraction=0.9)
@@ -128,7 +132,7 @@ def run_pour_target(work) -> dict:
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                                 volume_ml=POUR_FILL_ML, settle_s=0.5)
     r = run_pour(setup, model, state, target, rep.settled_ml / state.x.shape[0], horizon=horizon,
-                 step_size=step_size)
+                 step_size=step_size, approach_rate=approach_rate)
     return {"target_ml": target, "particles": int(state.x.shape[0]), "cup_ml": rep.settled_ml,
             "poured_ml": r.poured_ml, "error_ml": r.poured_ml - target, "spilled_ml": r.spilled_ml,
             "left_ml": r.left_ml, "switched_s": r.switched_s, "angles_deg": np.asarray(r.angles_deg).tolist(),
@@ -148,7 +152,9 @@ def run_pouring(args) -> int:
             raise SystemExit(f"--targets takes ml to pour, got {args.targets!r}") from None
         if not targets or any(not 0 < t < POUR_FILL_ML for t in targets):
             raise SystemExit(f"--targets takes ml to pour, each in (0, {POUR_FILL_ML:g}), got {args.targets!r}")
-    work = [(t, args.seed, args.horizon, args.step_size) for t in targets]
+    if args.approach_rate is not None and not (math.isfinite(args.approach_rate) and args.approach_rate > 0):
+        raise SystemExit(f"--approach-rate must be a positive number of rad/s, got {args.approach_rate}")
+    work = [(t, args.seed, args.horizon, args.step_size, args.approach_rate) for t in targets]
     t0 = time.perf_counter()
     results = list(tqdm(map_jobs(run_pour_target, work, args.jobs), total=len(work), desc="pouring", unit="pour",
                         disable=args.no_progress))
@@ -156,7 +162,8 @@ def run_pouring(args) -> int:
     spilled = np.array([r["spilled_ml"] for r in results])
     rel = err / np.array(targets)
     doc = {"kind": "control", "scene": "pouring", "quick": True, "seed": args.seed, "fill_ml": POUR_FILL_ML,
-           "horizon": args.horizon, "step_size": args.step_size, "wall_s": time.perf_counter() - t0,
+           "horizon": args.horizon, "step_size": args.step_size, "approach_rate": args.approach_rate,
+           "wall_s": time.perf_counter() - t0,
            "max_abs_error_ml": float(np.abs(err).max()), "mean_abs_error_ml": float(np.abs(err).mean()),
            "mean_error_ml": float(err.mean()), "max_spilled_ml": float(spilled.max()),
            "max_abs_error_rel": float(np.abs(rel).max()), "mean_abs_error_rel": float(np.abs(rel).mean()),
@@ -248,7 +255,8 @@ def run(args) -> int:
         results.append(r)
     good = sum(r["caught"] >= GOOD for r in results)
     doc = {"kind": "control", "scene": "plate_tilt", "quick": args.quick, "seed": args.seed, "seconds": args.seconds,
-           "horizon": args.horizon, "step_size": args.step_size, "wall_s": time.perf_counter() - t0,
+           "horizon": args.horizon, "step_size": args.step_size, "approach_rate": args.approach_rate,
+           "wall_s": time.perf_counter() - t0,
            "results": results,
            "headline": {"name": "plate targets with >= 99 % in the target bowl", "value": good,
                         "unit": f"of {len(results)}"}}
