@@ -19,9 +19,8 @@ manoeuvre (what was predicted is what is done).
 ``approach_rate`` (off by default) caps the forward tilt rate from ``MIN_CHECK_TILT`` on, so
 the cup reaches the angle where liquid starts to flow slowly: at the full rate the liquid
 lags and then leaves in one surge (on the quick cup, 60 ml, ~21 ml in 0.3 s at 2 rad/s), most
-of which misses the bowl. The return keeps the full rate. Near the ask the drain predictions
-then run as often as the same tilt change at the full rate (every 4 steps at 0.5 rad/s)
-instead of every update.
+of which misses the bowl. The return keeps the full rate. The slow approach stays near the
+ask longer, and near the ask every update runs a drain prediction, so it costs time.
 """
 
 from __future__ import annotations
@@ -169,12 +168,9 @@ class PourMPC:
         u = self.mpc.update(state, q)[0]              # what runs until the next update, unless we switch
         if self.approach_rate is not None and float(q[0]) > MIN_CHECK_TILT:
             u = torch.clamp(u, max=self.approach_rate)
-        near = self.predicted >= NEAR * self.target_ml              # close: check every update …
-        every = CHECK_EVERY
-        if near:        # … or, under an approach cap, as often as the same tilt change at the full rate
-            every = 1 if self.approach_rate is None else max(1, int(float(space.max_rate[0]) / self.approach_rate))
-        due = self.updates == 1 or self.steps // every > prev // every
-        if float(q[0]) > MIN_CHECK_TILT and (due or (near and elapsed >= every)):
+        near = self.predicted >= NEAR * self.target_ml              # close: check every update
+        due = self.updates == 1 or self.steps // CHECK_EVERY > prev // CHECK_EVERY
+        if float(q[0]) > MIN_CHECK_TILT and (near or due):
             ask = lambda hold=None: predict_landed(self.model, state, q[0], space, self.dst,  # noqa: E731
                                                    self.dst_obj, self.ml, hold) - self.base_ml
             self.predicted = ask((u, int(elapsed)))                 # turning back at the next update
