@@ -65,7 +65,8 @@ def main() -> None:
                      on_step=trace)
         rec = {"what": "mpc_pour", "particles": int(state.x.shape[0]), "target_ml": target,
                "poured_ml": r.poured_ml, "left_ml": r.left_ml, "spilled_ml": r.spilled_ml,
-               "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "approach_rate": a.approach_rate, "max_angle_deg": float(np.max(r.angles_deg)),
+               "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "approach_rate": a.approach_rate,
+               "max_angle_deg": float(np.max(r.angles_deg)),
                "update_s": r.update_s, "wall_s": time.perf_counter() - t0, "peak_mem_bytes": None}
         emit(rec, not a.no_history)
 

@@ -45,10 +45,8 @@ def measure(path: Path) -> dict:
     rec = read_recording(path, images=False)
     eng = engine_for(rec, "open_loop")
     scene = eng._scene                                  # read only: its objects decide "held"
-    name = eng.container_names[0] if "source" not in eng.container_names else "source"
-    k = eng.object_names.index(name)
     model = scene.model
-    dst = eng.object_names.index("target")
+    k, dst = eng.object_names.index("source"), eng.object_names.index("target")
     replay(rec, eng)
     poses = np.asarray(eng._frame_poses, float)
     n0 = eng.n_particles + eng.lost_particles

@@ -123,8 +123,7 @@ def test_iterations_option_sets_the_analysing_models_solver(evaluated):
     from liquidtwin.evaluate.cli import with_model_options
     from liquidtwin.evaluate.replay import engine_for
     from liquidtwin.recordings import read_recording
-    _, data, doc = evaluated
-    path = doc["cases"][0]["recording"]
+    path = evaluated[2]["cases"][0]["recording"]
     assert engine_for(read_recording(path, images=False), "open_loop")._scene.model.iterations == 4
     rec = with_model_options(read_recording(path, images=False), 6)
     assert rec.spec.simulation.iterations == 6

@@ -82,6 +82,13 @@ class PourRun:
     update_s: float
 
 
+def check_approach_rate(rate: float | None) -> float | None:
+    """``rate`` as a float (None: no cap); ControlError unless a positive number of rad/s."""
+    if rate is not None and not (math.isfinite(rate) and rate > 0):
+        raise ControlError(f"approach_rate must be a positive number of rad/s, got {rate}")
+    return None if rate is None else float(rate)
+
+
 def _return_rate(q: torch.Tensor, dt: float, max_rate) -> torch.Tensor:
     """The return manoeuvre's control: back towards upright at the rate limit, no overshoot."""
     max_rate = torch.as_tensor(max_rate, dtype=q.dtype)
@@ -121,9 +128,7 @@ class PourMPC:
                  target_ml: float, ml_per_particle: float, *, state,
                  horizon: int = 10, step_size: float = 0.5, anticipate: bool = True,
                  approach_rate: float | None = None):
-        if approach_rate is not None and not (math.isfinite(approach_rate) and approach_rate > 0):
-            raise ControlError(f"approach_rate must be a positive number of rad/s, got {approach_rate}")
-        self.approach_rate = None if approach_rate is None else float(approach_rate)
+        self.approach_rate = check_approach_rate(approach_rate)
         self.model, self.src, self.dst, self.src_obj, self.dst_obj = model, src, dst, src_obj, dst_obj
         self.target_ml, self.ml, self.anticipate = float(target_ml), float(ml_per_particle), bool(anticipate)
         self.base_ml = float(held(model, state, dst, dst_obj)[0].sum()) * self.ml

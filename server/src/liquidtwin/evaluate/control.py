@@ -26,7 +26,6 @@ where the liquid went).
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 
@@ -152,8 +151,12 @@ def run_pouring(args) -> int:
             raise SystemExit(f"--targets takes ml to pour, got {args.targets!r}") from None
         if not targets or any(not 0 < t < POUR_FILL_ML for t in targets):
             raise SystemExit(f"--targets takes ml to pour, each in (0, {POUR_FILL_ML:g}), got {args.targets!r}")
-    if args.approach_rate is not None and not (math.isfinite(args.approach_rate) and args.approach_rate > 0):
-        raise SystemExit(f"--approach-rate must be a positive number of rad/s, got {args.approach_rate}")
+    from ..control import ControlError
+    from ..control.pour import check_approach_rate
+    try:
+        check_approach_rate(args.approach_rate)
+    except ControlError as e:
+        raise SystemExit(f"--approach-rate: {e}") from None
     work = [(t, args.seed, args.horizon, args.step_size, args.approach_rate) for t in targets]
     t0 = time.perf_counter()
     results = list(tqdm(map_jobs(run_pour_target, work, args.jobs), total=len(work), desc="pouring", unit="pour",
@@ -255,8 +258,7 @@ def run(args) -> int:
         results.append(r)
     good = sum(r["caught"] >= GOOD for r in results)
     doc = {"kind": "control", "scene": "plate_tilt", "quick": args.quick, "seed": args.seed, "seconds": args.seconds,
-           "horizon": args.horizon, "step_size": args.step_size, "approach_rate": args.approach_rate,
-           "wall_s": time.perf_counter() - t0,
+           "horizon": args.horizon, "step_size": args.step_size, "wall_s": time.perf_counter() - t0,
            "results": results,
            "headline": {"name": "plate targets with >= 99 % in the target bowl", "value": good,
                         "unit": f"of {len(results)}"}}
