@@ -206,22 +206,43 @@ def test_the_library_drives_a_real_session(module_servers):
         assert status.task.pour.volume_ml == 5.0
         got = []
         s.on("control", got.append)
-        for frame in replay.frames[:5]:  # lockstep by hand: wait for each frame's particles
-            for sample in frame.samples:
-                s.publish_raw(sample.stream, sample.payload, sample.stamp_ns)
-            for out in s.outputs(timeout=30.0):
-                if out.stream == "particles" and out.header.stamp_ns == frame.stamp_ns:
-                    pos, _ = decode_particles(out.message)
-                    assert pos.shape == (status.particles, 3)
-                    break
-            else:
-                pytest.fail(f"no particles for frame {frame.stamp_ns}:\n{server.stderr()[-2000:]}")
+
+        def play(frames):  # lockstep by hand: wait for each frame's particles
+            for frame in frames:
+                for sample in frame.samples:
+                    s.publish_raw(sample.stream, sample.payload, sample.stamp_ns)
+                for out in s.outputs(timeout=30.0):
+                    if out.stream == "particles" and out.header.stamp_ns == frame.stamp_ns:
+                        pos, _ = decode_particles(out.message)
+                        assert pos.shape == (status.particles, 3)
+                        break
+                else:
+                    pytest.fail(f"no particles for frame {frame.stamp_ns}:\n{server.stderr()[-2000:]}")
+
+        def wait_controls(n):
+            deadline = time.monotonic() + 5.0
+            while len(got) < n and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert len(got) == n, len(got)
+
+        play(replay.frames[:5])
         assert s.status().frames_done == 5
-        deadline = time.monotonic() + 5.0
-        while len(got) < 5 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert len(got) == 5 and got[-1].message.object == "source"
-        assert s.reset().frames_done == 5  # counters kept, liquid back to the fill
+        wait_controls(5)
+        assert got[-1].message.object == "source" and len(got[-1].message.pose) == 7
+        # a catch task replaces it: the target slides under what falls from the source
+        with pytest.raises(ServerError) as err:
+            s.set_catch_task("source", "table")
+        assert err.value.code_name == "BAD_REQUEST" and "not a container" in err.value.message
+        with pytest.raises(ServerError) as err:
+            s.set_send_task("source", "target", max_rate_rad_s=-1.0)
+        assert err.value.code_name == "BAD_REQUEST" and "max_rate_rad_s" in err.value.message
+        assert s.set_catch_task("source", "target").task.catch_stream.catcher == "target"
+        play(replay.frames[5:7])
+        wait_controls(7)
+        c = got[-1].message
+        assert c.object == "target" and c.controller == "mpc" and len(c.pose) == 7
+        assert len(c.linear_velocity_m_s) == 3 and abs(c.linear_velocity_m_s[0]) <= 0.5 + 1e-9
+        assert s.reset().frames_done == 7  # counters kept, liquid back to the fill
         assert s.close().state == "closed"
         with pytest.raises(ServerError) as err:
             client.session("lib")

@@ -200,6 +200,28 @@ class SessionHandle:
         task.pour.max_rate_rad_s = float(max_rate_rad_s)
         return self._rpc("set_task", SetTaskRequest(header=self._header(), task=task), timeout)
 
+    def set_catch_task(self, source: str, catcher: str, max_speed_m_s: float = 0.0, range_m: float = 0.0,
+                       timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
+        """Ask the controller to slide container ``catcher`` along world x under the liquid
+        falling from ``source`` (which someone else moves); limits: speed (m/s) and range either
+        way from where the catcher is now (m), 0 = the server's defaults. Each Control's
+        ``pose`` is where the catcher should be at the next frame."""
+        task = Task(controller="mpc")
+        task.catch_stream.source, task.catch_stream.catcher = source, catcher
+        task.catch_stream.max_speed_m_s, task.catch_stream.range_m = float(max_speed_m_s), float(range_m)
+        return self._rpc("set_task", SetTaskRequest(header=self._header(), task=task), timeout)
+
+    def set_send_task(self, obj: str, target: str, max_angle_rad: float = 0.0, max_rate_rad_s: float = 0.0,
+                      timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
+        """Ask the controller to tilt ``obj`` (a plate holding liquid) about world x and z so the
+        liquid lands in container ``target``; limits: tilt about each axis (rad) and rate
+        (rad/s), 0 = the server's defaults. Each Control's ``pose`` is where ``obj`` should be
+        at the next frame."""
+        task = Task(controller="mpc")
+        task.send.object, task.send.target = obj, target
+        task.send.max_angle_rad, task.send.max_rate_rad_s = float(max_angle_rad), float(max_rate_rad_s)
+        return self._rpc("set_task", SetTaskRequest(header=self._header(), task=task), timeout)
+
     def cancel_task(self, timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
         """Cancel the current task (an empty Task)."""
         return self._rpc("set_task", SetTaskRequest(header=self._header(), task=Task()), timeout)

@@ -228,7 +228,7 @@ class SessionSpec(_message.Message):
     def __init__(self, scene: _Optional[_Union[SceneSpec, _Mapping]] = ..., cameras: _Optional[_Iterable[_Union[CameraSetup, _Mapping]]] = ..., fluid: _Optional[_Union[FluidParameters, _Mapping]] = ..., tracking: _Optional[_Union[TrackingMode, str]] = ..., device: _Optional[str] = ..., correction_gain: _Optional[float] = ..., mask_source: _Optional[str] = ...) -> None: ...
 
 class Task(_message.Message):
-    __slots__ = ("pour", "controller")
+    __slots__ = ("pour", "catch_stream", "send", "controller")
     class PourToVolume(_message.Message):
         __slots__ = ("source", "target", "volume_ml", "max_angle_rad", "max_rate_rad_s")
         SOURCE_FIELD_NUMBER: _ClassVar[int]
@@ -242,14 +242,40 @@ class Task(_message.Message):
         max_angle_rad: float
         max_rate_rad_s: float
         def __init__(self, source: _Optional[str] = ..., target: _Optional[str] = ..., volume_ml: _Optional[float] = ..., max_angle_rad: _Optional[float] = ..., max_rate_rad_s: _Optional[float] = ...) -> None: ...
+    class CatchStream(_message.Message):
+        __slots__ = ("source", "catcher", "max_speed_m_s", "range_m")
+        SOURCE_FIELD_NUMBER: _ClassVar[int]
+        CATCHER_FIELD_NUMBER: _ClassVar[int]
+        MAX_SPEED_M_S_FIELD_NUMBER: _ClassVar[int]
+        RANGE_M_FIELD_NUMBER: _ClassVar[int]
+        source: str
+        catcher: str
+        max_speed_m_s: float
+        range_m: float
+        def __init__(self, source: _Optional[str] = ..., catcher: _Optional[str] = ..., max_speed_m_s: _Optional[float] = ..., range_m: _Optional[float] = ...) -> None: ...
+    class SendToContainer(_message.Message):
+        __slots__ = ("object", "target", "max_angle_rad", "max_rate_rad_s")
+        OBJECT_FIELD_NUMBER: _ClassVar[int]
+        TARGET_FIELD_NUMBER: _ClassVar[int]
+        MAX_ANGLE_RAD_FIELD_NUMBER: _ClassVar[int]
+        MAX_RATE_RAD_S_FIELD_NUMBER: _ClassVar[int]
+        object: str
+        target: str
+        max_angle_rad: float
+        max_rate_rad_s: float
+        def __init__(self, object: _Optional[str] = ..., target: _Optional[str] = ..., max_angle_rad: _Optional[float] = ..., max_rate_rad_s: _Optional[float] = ...) -> None: ...
     POUR_FIELD_NUMBER: _ClassVar[int]
+    CATCH_STREAM_FIELD_NUMBER: _ClassVar[int]
+    SEND_FIELD_NUMBER: _ClassVar[int]
     CONTROLLER_FIELD_NUMBER: _ClassVar[int]
     pour: Task.PourToVolume
+    catch_stream: Task.CatchStream
+    send: Task.SendToContainer
     controller: str
-    def __init__(self, pour: _Optional[_Union[Task.PourToVolume, _Mapping]] = ..., controller: _Optional[str] = ...) -> None: ...
+    def __init__(self, pour: _Optional[_Union[Task.PourToVolume, _Mapping]] = ..., catch_stream: _Optional[_Union[Task.CatchStream, _Mapping]] = ..., send: _Optional[_Union[Task.SendToContainer, _Mapping]] = ..., controller: _Optional[str] = ...) -> None: ...
 
 class Control(_message.Message):
-    __slots__ = ("header", "object", "tilt_angle_rad", "tilt_rate_rad_s", "achieved_ml", "remaining_ml", "done", "controller", "axis_point_m", "axis_direction")
+    __slots__ = ("header", "object", "tilt_angle_rad", "tilt_rate_rad_s", "achieved_ml", "remaining_ml", "done", "controller", "axis_point_m", "axis_direction", "pose", "linear_velocity_m_s", "angular_velocity_rad_s")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     OBJECT_FIELD_NUMBER: _ClassVar[int]
     TILT_ANGLE_RAD_FIELD_NUMBER: _ClassVar[int]
@@ -260,6 +286,9 @@ class Control(_message.Message):
     CONTROLLER_FIELD_NUMBER: _ClassVar[int]
     AXIS_POINT_M_FIELD_NUMBER: _ClassVar[int]
     AXIS_DIRECTION_FIELD_NUMBER: _ClassVar[int]
+    POSE_FIELD_NUMBER: _ClassVar[int]
+    LINEAR_VELOCITY_M_S_FIELD_NUMBER: _ClassVar[int]
+    ANGULAR_VELOCITY_RAD_S_FIELD_NUMBER: _ClassVar[int]
     header: Header
     object: str
     tilt_angle_rad: float
@@ -270,7 +299,10 @@ class Control(_message.Message):
     controller: str
     axis_point_m: _containers.RepeatedScalarFieldContainer[float]
     axis_direction: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., object: _Optional[str] = ..., tilt_angle_rad: _Optional[float] = ..., tilt_rate_rad_s: _Optional[float] = ..., achieved_ml: _Optional[float] = ..., remaining_ml: _Optional[float] = ..., done: _Optional[bool] = ..., controller: _Optional[str] = ..., axis_point_m: _Optional[_Iterable[float]] = ..., axis_direction: _Optional[_Iterable[float]] = ...) -> None: ...
+    pose: _containers.RepeatedScalarFieldContainer[float]
+    linear_velocity_m_s: _containers.RepeatedScalarFieldContainer[float]
+    angular_velocity_rad_s: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., object: _Optional[str] = ..., tilt_angle_rad: _Optional[float] = ..., tilt_rate_rad_s: _Optional[float] = ..., achieved_ml: _Optional[float] = ..., remaining_ml: _Optional[float] = ..., done: _Optional[bool] = ..., controller: _Optional[str] = ..., axis_point_m: _Optional[_Iterable[float]] = ..., axis_direction: _Optional[_Iterable[float]] = ..., pose: _Optional[_Iterable[float]] = ..., linear_velocity_m_s: _Optional[_Iterable[float]] = ..., angular_velocity_rad_s: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class OverlayInfo(_message.Message):
     __slots__ = ("camera", "observed_only_rgb", "model_only_rgb", "overlap_rgb", "observed_px", "model_px", "overlap_px")

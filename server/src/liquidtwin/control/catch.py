@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
@@ -83,39 +84,91 @@ def catching_setup(motion: int, quick: bool = True, seed: int = 0):
                                                              "drift_m_s": drift})
 
 
-def catch_space(setup, t: float, horizon: int, dt: float) -> ControlSpace:
-    """ControlSpace of the catcher's x from time ``t``: the other objects at their scripted
-    poses of each planned step ((horizon, M, 7) base poses)."""
-    k = setup.index("catcher")
-    base = torch.as_tensor(np.stack([setup.poses_at(t + (i + 1) * dt) for i in range(horizon)]), dtype=torch.float64)
-    rest = base[0, k].clone()
-    x0 = float(setup.objects[k].motion(0.0)[0])
+@dataclass(frozen=True, eq=False)
+class CatchParts:
+    """What the catching task needs of a scene: the source's and the catcher's indices and
+    object models, the catcher's pose at rest (7,) (its rim height and z count), and
+    ``poses_at(t)`` → (M, 7) the scene's poses at time t s (the source where it will be; the
+    catcher where it rests). From a catalogue setup: :meth:`of`; a session builds its own
+    from the frames it has seen (:mod:`liquidtwin.session._task`)."""
+
+    src: int
+    src_obj: object
+    dst: int
+    dst_obj: object
+    rest: np.ndarray
+    poses_at: Callable
+
+    @classmethod
+    def of(cls, setup) -> "CatchParts":
+        src, dst = setup.index("source"), setup.index("catcher")
+        return cls(src, setup.objects[src].model, dst, setup.objects[dst].model,
+                   np.asarray(setup.poses_at(0.0)[dst], float), setup.poses_at)
+
+
+def extrapolate_pose(pose0, pose1, s: float) -> np.ndarray:
+    """(7,) the pose a rigid body reaches if the motion that took it from ``pose0`` to
+    ``pose1`` goes on for ``s`` more times as long, at the same twist: a screw motion (a turn
+    about a fixed axis plus a slide along it; exact for a cup turning about its lip at a
+    constant rate, and for a constant velocity)."""
+    p0, p1 = np.asarray(pose0, float), np.asarray(pose1, float)
+    q0, q1 = p0[3:] / np.linalg.norm(p0[3:]), p1[3:] / np.linalg.norm(p1[3:])
+    dq = mo.quat_multiply(q1, q0 * [-1.0, -1.0, -1.0, 1.0])
+    dq = dq if dq[3] >= 0 else -dq
+    r = mo.quat_matrix(dq)
+    d = p1[:3] - r @ p0[:3]                                  # the step maps x to r x + d
+    sin_half = float(np.linalg.norm(dq[:3]))
+    if sin_half < 1e-9:                                     # no turn: a constant velocity
+        return np.concatenate([p1[:3] + s * d, q1])
+    axis = dq[:3] / sin_half
+    angle = 2.0 * np.arctan2(sin_half, dq[3])
+    along = float(axis @ d)
+    c = np.linalg.lstsq(np.eye(3) - r, d - along * axis, rcond=None)[0]     # a point on the screw axis
+    rs = mo.quat_axis_angle(axis, s * angle)
+    return np.concatenate([c + mo.quat_matrix(rs) @ (p1[:3] - c) + s * along * axis, mo.quat_multiply(rs, q1)])
+
+
+def slide_space(base_poses, index: int, x0: float, range_m: float = RANGE, max_speed: float = MAX_SPEED) -> ControlSpace:
+    """ControlSpace of object ``index``'s x (m, world) within ``x0 ± range_m`` at up to
+    ``max_speed`` m/s, the scene otherwise at ``base_poses`` ((horizon, M, 7): one per planned
+    step; the controlled object keeps its first pose's y, z and rotation)."""
+    base = torch.as_tensor(np.asarray(base_poses, float), dtype=torch.float64)
+    rest = base[0, index].clone()
 
     def to_pose(q):
         pose = rest.to(q.dtype).expand(q.shape[0], 7).clone()
         return torch.cat([q[:, :1], pose[:, 1:]], dim=1)
 
-    return ControlSpace(base, k, to_pose, torch.tensor([x0 - RANGE], dtype=torch.float64),
-                        torch.tensor([x0 + RANGE], dtype=torch.float64), torch.tensor([MAX_SPEED], dtype=torch.float64))
+    t = lambda v: torch.tensor([float(v)], dtype=torch.float64)  # noqa: E731
+    return ControlSpace(base, index, to_pose, t(x0 - range_m), t(x0 + range_m), t(max_speed))
+
+
+def catch_space(setup, t: float, horizon: int, dt: float) -> ControlSpace:
+    """ControlSpace of the catcher's x from time ``t``: the other objects at their scripted
+    poses of each planned step ((horizon, M, 7) base poses)."""
+    k = setup.index("catcher")
+    base = np.stack([setup.poses_at(t + (i + 1) * dt) for i in range(horizon)])
+    return slide_space(base, k, float(setup.objects[k].motion(0.0)[0]))
 
 
 class CatchLoss:
     """The task loss of a rollout from one state (module doc): ``loss(s, k, q)`` for the MPC
-    and the policy alike. ``away``: the particles that had left the source when the rollout
-    began; ``hold_x``: where the catcher was then; ``aim``: where the first liquid is
-    predicted to land (x, m; None: nothing predicted)."""
+    and the policy alike. ``parts``: a :class:`CatchParts` (or a catalogue setup); ``away``:
+    the particles that had left the source when the rollout began; ``hold_x``: where the
+    catcher was then; ``aim``: where the first liquid is predicted to land (x, m; None:
+    nothing predicted)."""
 
-    def __init__(self, setup, model, state, hold_x: float, aim: float | None = None):
-        src, dst = setup.index("source"), setup.index("catcher")
+    def __init__(self, parts, model, state, hold_x: float, aim: float | None = None):
+        parts = parts if isinstance(parts, CatchParts) else CatchParts.of(parts)
         self.n = int(state.x.shape[0])
-        self.away = state.ids[torch.as_tensor(~held(model, state, src, setup.objects[src].model)[0])]
+        self.away = state.ids[torch.as_tensor(~held(model, state, parts.src, parts.src_obj)[0])]
         self.hold_x = float(hold_x)
         self.aim = None if aim is None or not np.isfinite(aim) else float(aim)
-        pose = setup.poses_at(0.0)[dst]
+        dst, pose = parts.dst, parts.rest
         self.dst = dst
-        self.rim_y = float(pose[1]) + float(setup.objects[dst].model.rim_height)
+        self.rim_y = float(pose[1]) + float(parts.dst_obj.rim_height)
         self.rest_z = float(pose[2])
-        b = setup.objects[dst].model.cavity.bounds
+        b = parts.dst_obj.cavity.bounds
         self.r_open = 0.5 * float(min(b[1, 0] - b[0, 0], b[1, 2] - b[0, 2]))
 
     def landing(self, s) -> tuple[torch.Tensor, torch.Tensor] | None:
@@ -142,24 +195,67 @@ class CatchLoss:
         return torch.sqrt((land_x - q[0]) ** 2 + (land_z - self.rest_z) ** 2 + 1e-12).mean()
 
 
-def first_landing(setup, model, state, t: float, x_catcher: float, steps: int = LOOKAHEAD) -> float:
+def first_landing(parts, model, state, t: float, x_catcher: float, steps: int = LOOKAHEAD) -> float:
     """Median x (m) where the first falling liquid lands, predicted by rolling the model
-    ``steps`` steps from ``state`` at time ``t`` under the scene's script (no gradient; the
-    catcher stays at ``x_catcher``); NaN when nothing falls within them or the source is empty."""
-    src, dst = setup.index("source"), setup.index("catcher")
-    if float(held(model, state, src, setup.objects[src].model)[0].mean()) < FALLING_MIN:
+    ``steps`` steps from ``state`` at time ``t`` under ``parts.poses_at`` (a :class:`CatchParts`
+    or a catalogue setup: its script; no gradient; the catcher stays at ``x_catcher``); NaN
+    when nothing falls within them or the source is empty."""
+    parts = parts if isinstance(parts, CatchParts) else CatchParts.of(parts)
+    if float(held(model, state, parts.src, parts.src_obj)[0].mean()) < FALLING_MIN:
         return float("nan")
     s = state
     with torch.no_grad():
         for j in range(steps):
-            poses = torch.as_tensor(setup.poses_at(t + (j + 1) * model.dt))
-            poses[dst, 0] = x_catcher
+            poses = torch.as_tensor(np.array(parts.poses_at(t + (j + 1) * model.dt), float))
+            poses[parts.dst, 0] = x_catcher
             s = step(model, s, poses.to(s.x))
             if (j + 1) % 4 == 0 or j + 1 == steps:
-                land = CatchLoss(setup, model, s, x_catcher).landing(s)
+                land = CatchLoss(parts, model, s, x_catcher).landing(s)
                 if land is not None:
                     return float(land[0].median())
     return float("nan")
+
+
+class CatchMPC:
+    """The catching MPC (module doc), one update at a time: :func:`run_catch`'s and a
+    session's catch task's. Keeps the plan and the predicted first landing (``aim``, re-run
+    every ``LOOKAHEAD_EVERY`` model steps while nothing falls)."""
+
+    def __init__(self, model, space: ControlSpace, *, horizon: int = 10, step_size: float = 0.1):
+        self.mpc = MPC(model, space, None, horizon=horizon, step_size=step_size)
+        self.aim, self.steps, self.updates = float("nan"), 0, 0
+
+    def loss(self, parts: CatchParts, state, t: float, x: float, elapsed: int = 1) -> CatchLoss:
+        """The loss of the rollout from ``state`` at time ``t`` with the catcher at ``x``;
+        ``elapsed``: model steps since the previous call (the aim is refreshed on schedule)."""
+        prev = self.steps
+        if self.updates:
+            self.steps += int(elapsed)
+        self.updates += 1
+        loss = CatchLoss(parts, self.mpc.model, state, x)
+        if loss.landing(state) is not None:
+            self.aim = float("nan")                                   # the stream is here: aim at it
+        elif self.updates == 1 or self.steps // LOOKAHEAD_EVERY > prev // LOOKAHEAD_EVERY:
+            self.aim = first_landing(parts, self.mpc.model, state, t, x)
+        loss.aim = self.aim if np.isfinite(self.aim) else None
+        return loss
+
+    def update(self, state, q: torch.Tensor, space: ControlSpace, loss: CatchLoss, elapsed: int = 1) -> torch.Tensor:
+        """One gradient step on the plan; the control (m/s, (1,)) to run until the next update.
+        ``elapsed`` > 1: the plan's first elapsed − 1 steps are past."""
+        if elapsed > 1:
+            k = min(int(elapsed) - 1, self.mpc.plan.shape[0] - 1)
+            self.mpc.plan = torch.cat([self.mpc.plan[k:], self.mpc.plan[-1:].expand(k, -1)])
+        self.mpc.space, self.mpc.loss = space, loss
+        return self.mpc.update(state, q)[0]
+
+    def state_dict(self) -> dict:
+        return {"aim": float(self.aim), "steps": int(self.steps), "updates": int(self.updates),
+                "plan": self.mpc.plan.clone()}
+
+    def load_state_dict(self, d: dict) -> None:
+        self.aim, self.steps, self.updates = float(d["aim"]), int(d["steps"]), int(d["updates"])
+        self.mpc.plan = d["plan"].clone()
 
 
 @dataclass
@@ -185,33 +281,26 @@ def run_catch(setup, model, state, *, horizon: int = 10, step_size: float = 0.1,
     src, dst = setup.index("source"), setup.index("catcher")
     src_obj, dst_obj = setup.objects[src].model, setup.objects[dst].model
     n = int(state.x.shape[0])
-    space = catch_space(setup, 0.0, horizon, model.dt)
-    mpc = None if policy is not None else MPC(model, space, None, horizon=horizon, step_size=step_size)
+    parts = CatchParts.of(setup)
+    ctrl = CatchMPC(model, catch_space(setup, 0.0, horizon, model.dt), horizon=horizon, step_size=step_size)
     q = torch.tensor([float(setup.poses_at(0.0)[dst][0])], dtype=torch.float64)
     steps = int(round((seconds or setup.duration) / model.dt))
     xs, states, aims = [], [], []
-    aim = float("nan")
     t0 = time.perf_counter()
     for i in tqdm(range(steps), desc=f"catch, motion {setup.notes.get('motion')}", unit="step",
                   disable=not progress, leave=False):
         t = i * model.dt
-        space = catch_space(setup, t, horizon if mpc else 1, model.dt)
-        if mpc is not None or keep_states:
-            loss = CatchLoss(setup, model, state, float(q[0]))
-            if loss.landing(state) is not None:
-                aim = float("nan")                                  # the stream is here: aim at it
-            elif i % LOOKAHEAD_EVERY == 0:
-                aim = first_landing(setup, model, state, t, float(q[0]))
-            loss.aim = aim if np.isfinite(aim) else None
+        space = catch_space(setup, t, horizon if policy is None else 1, model.dt)
+        if policy is None or keep_states:
+            loss = ctrl.loss(parts, state, t, float(q[0]))
         if keep_states:
             states.append(state)
-            aims.append(aim)
-        if mpc is None:
+            aims.append(ctrl.aim)
+        if policy is not None:
             with torch.no_grad():
                 u = policy.control(state.x, q, setup)
         else:
-            mpc.space, mpc.loss = space, loss
-            u, _ = mpc.update(state, q)
+            u = ctrl.update(state, q, space, loss)
         q = space.positions(q, u[None], model.dt)[0]
         poses = space.base_poses[0].clone()                         # the scene at t + dt …
         poses[dst] = space.to_pose(q[None])[0]                      # … with the catcher where it went

@@ -18,7 +18,9 @@ from tqdm.auto import tqdm
 
 from ..scenes.liquid_level import held
 from ..sim import step
-from .mpc import MPC, ControlError, ControlSpace
+from ..scenes.motions import quat_matrix
+from .mpc import MPC, ControlError, ControlSpace, by_ids
+from .tilt import quat_mul_t
 
 #: Tilt limits: ±45° about each axis, at most 3 rad/s.
 MAX_TILT = math.radians(45.0)
@@ -54,24 +56,55 @@ class PlateRun:
     update_s: float        # mean wall time per MPC update
 
 
-def plate_space(setup) -> ControlSpace:
-    k = setup.index("plate")
-    base = torch.as_tensor(setup.poses_at(0.0), dtype=torch.float64)
-    centre = base[k, :3]
+def tilt2_space(base_poses, index: int, rest_pose=None, max_tilt: float = MAX_TILT,
+                max_rate: float = MAX_RATE) -> ControlSpace:
+    """ControlSpace of object ``index`` tilted by q = (about world x, about z) rad from its
+    ``rest_pose`` (7,; default: its pose in ``base_poses`` (M, 7)), pivoting about that pose's
+    origin: rotation Rx·Rz·R_rest. Limits ±``max_tilt`` rad, ±``max_rate`` rad/s."""
+    base = torch.as_tensor(np.asarray(base_poses, float), dtype=torch.float64)
+    rest = base[index] if rest_pose is None else torch.as_tensor(np.asarray(rest_pose, float), dtype=torch.float64)
+    centre, rot0 = rest[:3], rest[3:] / rest[3:].norm()
 
     def to_pose(q):
-        return torch.cat([centre.to(q.dtype).expand(q.shape[0], 3), tilt_quaternion(q)], dim=1)
+        rot = quat_mul_t(tilt_quaternion(q), rot0.to(q.dtype).expand(q.shape[0], 4))
+        return torch.cat([centre.to(q.dtype).expand(q.shape[0], 3), rot], dim=1)
 
-    lim = torch.full((2,), MAX_TILT, dtype=torch.float64)
-    return ControlSpace(base, k, to_pose, -lim, lim, torch.full((2,), MAX_RATE, dtype=torch.float64))
+    lim = torch.full((2,), float(max_tilt), dtype=torch.float64)
+    return ControlSpace(base, index, to_pose, -lim, lim, torch.full((2,), float(max_rate), dtype=torch.float64))
+
+
+def tilt2_of(pose, rest_pose) -> np.ndarray:
+    """(2,) the tilts q (rad) with Rx(q0)·Rz(q1)·R_rest = ``pose``'s rotation (the inverse of
+    :func:`tilt2_space`'s map, for |q| < 90°)."""
+    r = quat_matrix(np.asarray(pose, float)[3:]) @ quat_matrix(np.asarray(rest_pose, float)[3:]).T
+    return np.array([math.atan2(-r[1, 2], r[2, 2]), math.atan2(-r[0, 1], r[0, 0])])
+
+
+def plate_space(setup) -> ControlSpace:
+    return tilt2_space(setup.poses_at(0.0), setup.index("plate"))
+
+
+def aim_point(pose, obj) -> torch.Tensor:
+    """(3,) the aim point of a target container at ``pose`` (upright): above its centre, at its
+    rim height."""
+    rim = float(obj.mesh.bounds[1][1])
+    return torch.tensor([float(pose[0]), float(pose[1]) + rim, float(pose[2])])
 
 
 def target_point(setup, target: int) -> torch.Tensor:
     """(3,) the aim point: above bowl ``target``'s centre, at its rim height."""
     k = setup.index(f"bowl{target}")
-    pose = setup.poses_at(0.0)[k]
-    rim = float(setup.objects[k].model.mesh.bounds[1][1])
-    return torch.tensor([pose[0], pose[1] + rim, pose[2]])
+    return aim_point(setup.poses_at(0.0)[k], setup.objects[k].model)
+
+
+def send_loss(aim: torch.Tensor, upright: float = UPRIGHT_WEIGHT, lookahead_s: float = LOOKAHEAD_S, ids=None):
+    """The plate MPC's loss ``loss(s, k, q)`` (module doc): mean distance of the particles
+    (``ids``: only those, by label) ``lookahead_s`` ahead at their velocity to ``aim``, plus
+    ``upright`` × |q|²."""
+    def loss(s, k, q):
+        x, v = (s.x, s.v) if ids is None else by_ids(s, ids)
+        return (x + lookahead_s * v - aim.to(x)).norm(dim=1).mean() + upright * (q ** 2).sum()
+    return loss
 
 
 def run_plate(setup, model, state, target: int, *, seconds: float = 2.5, horizon: int = 10,
@@ -82,10 +115,7 @@ def run_plate(setup, model, state, target: int, *, seconds: float = 2.5, horizon
     if not 0 <= target < 8:
         raise ControlError(f"the plate scene has bowls 0-7, got target {target}")
     space = plate_space(setup)
-    aim = target_point(setup, target).to(state.x.dtype)
-    def loss(s, k, q):
-        return (s.x + lookahead_s * s.v - aim).norm(dim=1).mean() + upright * (q ** 2).sum()
-
+    loss = send_loss(target_point(setup, target).to(state.x.dtype), upright, lookahead_s)
     mpc = MPC(model, space, loss, horizon=horizon, step_size=step_size)
     q = torch.zeros(2, dtype=torch.float64)
     steps = int(round(seconds / model.dt))

@@ -70,7 +70,7 @@ def turn_pose(pose: np.ndarray, point, axis, angle: float) -> np.ndarray:
     return np.concatenate([point + quat_matrix(q) @ (pose[:3] - point), quat_multiply(q, pose[3:])])
 
 
-def _quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+def quat_mul_t(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Hamilton product a ⊗ b of (..., 4) (x, y, z, w) quaternions (rotation b, then a)."""
     ax, ay, az, aw = a.unbind(-1)
     bx, by, bz, bw = b.unbind(-1)
@@ -96,7 +96,7 @@ def tilt_space(base_poses, index: int, pivot: np.ndarray, axis: np.ndarray, tilt
         pos = c + r * cos + torch.linalg.cross(a, r) * sin + a * (a @ r) * (1.0 - cos)    # Rodrigues
         half = 0.5 * turn[:, None]
         qa = torch.cat([a * torch.sin(half), torch.cos(half)], 1)
-        return torch.cat([pos, _quat_mul(qa, q0.expand_as(qa))], 1)
+        return torch.cat([pos, quat_mul_t(qa, q0.expand_as(qa))], 1)
 
     t = lambda v: torch.tensor([v], dtype=torch.float64)  # noqa: E731
     if not (math.isfinite(max_angle) and max_angle > 0 and math.isfinite(max_rate) and max_rate > 0):

@@ -63,6 +63,10 @@ def configure(p) -> None:
     p.add_argument("--approach-rate", type=float, default=None, metavar="RAD_S",
                    help="pouring: cap on the cup's forward tilt rate from 20 deg on, rad/s (default: none, "
                         "the full 2 rad/s; see control.pour)")
+    p.add_argument("--served", type=float, default=0.0, metavar="FPS",
+                   help="plate / catching MPC: run the task as a session serves it — set on a session engine, "
+                        "one Control per frame at FPS, a simulated robot moving the object to each Control's "
+                        "pose (evaluate.served); default 0: the offline controller, one update per model step")
     p.add_argument("--seed", type=int, default=0, help="scene draw (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=2, help="targets run in parallel (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
@@ -74,8 +78,11 @@ def run_target(work) -> dict:
     from ..control.plate import run_plate
     from ..scenes.fill import fill_container
     from ..sysid.data import scene_model
-    target, seed, quick, seconds, horizon, step_size = work
+    target, seed, quick, seconds, horizon, step_size, served = work
     torch.set_num_threads(1)
+    if served:
+        from .served import serve_plate
+        return serve_plate(target, seed, quick, seconds, served)
     setup, model = scene_model("plate_tilt", seed, quick)
     poses = torch.as_tensor(setup.poses_at(0.0))
     k = setup.index("plate")
@@ -93,8 +100,11 @@ def run_motion(work) -> dict:
     from ..control.catch import catching_setup, run_catch
     from ..generate.world import model_for
     from ..scenes.fill import fill_container
-    motion, seed, quick, horizon, step_size, policy_file = work
+    motion, seed, quick, horizon, step_size, policy_file, served = work
     torch.set_num_threads(1)
+    if served:
+        from .served import serve_catch
+        return serve_catch(motion, seed, quick, served)
     policy = None
     if policy_file is not None:
         from ..control.policy import load_policy
@@ -213,7 +223,7 @@ def run_catching(args, targets) -> int:
         trained, policy_file = list(meta.get("motions", [])), str(args.policy or "shipped")
         if meta.get("quick", True) != args.quick:
             print(f"note: the policy was trained on the {'quick' if meta.get('quick', True) else 'full'} scene")
-    work = [(m, args.seed, args.quick, args.horizon, args.step_size, policy_file) for m in targets]
+    work = [(m, args.seed, args.quick, args.horizon, args.step_size, policy_file, args.served) for m in targets]
     t0 = time.perf_counter()
     results = list(tqdm(map_jobs(run_motion, work, args.jobs), total=len(work), desc="catching", unit="motion",
                         disable=args.no_progress))
@@ -221,6 +231,7 @@ def run_catching(args, targets) -> int:
         r["trained_on"] = r["motion"] in trained
     good = sum(r["caught"] >= CATCH_GOOD for r in results)
     doc = {"kind": "control", "scene": "catching", "controller": args.controller, "policy": policy_file,
+           "served_fps": args.served,
            "trained_motions": trained, "quick": args.quick, "seed": args.seed, "horizon": args.horizon,
            "step_size": args.step_size, "wall_s": time.perf_counter() - t0, "results": results,
            "headline": {"name": "catching motions with >= 98 % caught", "value": good, "unit": f"of {len(results)}"}}
@@ -231,7 +242,7 @@ def run_catching(args, targets) -> int:
         print(f"{r['motion']:>6}{('-x' if r['direction'] < 0 else '+x'):>9}{r['drift_m_s']:>9.2f}m/s"
               f"{100 * r['caught']:>7.1f}%{100 * r['spilled']:>8.1f}%{100 * r['travel_m']:>6.1f}cm{r['update_s']:>10.3f}"
               + (("   trained" if r["trained_on"] else "   unseen") if trained else ""))
-    print(f"\n{args.controller}: {good}/{len(results)} motions with ≥ 98 % caught (thesis: 96.5–98.9 %); "
+    print(f"\n{args.controller}{f' served at {args.served:g} fps' if args.served else ''}: {good}/{len(results)} motions with ≥ 98 % caught (thesis: 96.5–98.9 %); "
           f"{doc['wall_s']:.0f} s. Results in {out}")
     _plot_catching(out / "catching.png", results, args.controller)
     return 0
@@ -245,19 +256,25 @@ def run(args) -> int:
         args.step_size = 0.1 if args.scene == "catching" else 0.5
     if not args.seconds > 0 or args.horizon < 1 or not args.step_size > 0:
         raise SystemExit("--seconds and --step-size must be > 0, --horizon >= 1")
+    if args.served:
+        if not (np.isfinite(args.served) and args.served > 0):
+            raise SystemExit(f"--served takes frames per second > 0, got {args.served}")
+        if args.scene == "pouring" or args.controller == "policy":
+            raise SystemExit("--served runs the plate and catching MPCs; a served pour: python bench/session_pour.py")
     if args.scene == "pouring":
         return run_pouring(args)
     targets = _targets(args)
     if args.scene == "catching":
         return run_catching(args, targets)
-    work = [(t, args.seed, args.quick, args.seconds, args.horizon, args.step_size) for t in targets]
+    work = [(t, args.seed, args.quick, args.seconds, args.horizon, args.step_size, args.served) for t in targets]
     t0 = time.perf_counter()
     results = []
     for r in tqdm(map_jobs(run_target, work, args.jobs), total=len(work), desc="plate", unit="target",
                   disable=args.no_progress):
         results.append(r)
     good = sum(r["caught"] >= GOOD for r in results)
-    doc = {"kind": "control", "scene": "plate_tilt", "quick": args.quick, "seed": args.seed, "seconds": args.seconds,
+    doc = {"kind": "control", "scene": "plate_tilt", "served_fps": args.served, "quick": args.quick, "seed": args.seed,
+           "seconds": args.seconds,
            "horizon": args.horizon, "step_size": args.step_size, "wall_s": time.perf_counter() - t0,
            "results": results,
            "headline": {"name": "plate targets with >= 99 % in the target bowl", "value": good,
@@ -268,7 +285,7 @@ def run(args) -> int:
         other = sum(r["in_bowls"]) - r["caught"]
         print(f"{r['target']:>6}{100 * r['caught']:>10.1f}%{100 * other:>12.1f}%{100 * r['spilled']:>8.1f}%"
               f"{r['max_tilt_deg']:>9.1f}°{r['update_s']:>10.2f}")
-    print(f"\n{good}/{len(results)} targets with ≥ 99 % in the target bowl (thesis: 7/8 at 100 %); "
+    print(f"\n{f'served at {args.served:g} fps: ' if args.served else ''}{good}/{len(results)} targets with ≥ 99 % in the target bowl (thesis: 7/8 at 100 %); "
           f"{doc['wall_s']:.0f} s. Results in {out}")
     _plot(out / "plate.png", results, args.seconds)
     return 0

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from ..sim import FluidState
-from ._task import PourTask, task_from_str
+from ._task import create_task, task_from_str
 from .errors import BAD_REQUEST, EngineError
 
 VERSION = 1
@@ -31,8 +31,8 @@ def engine_state(engine) -> dict:
         "frame_t": float(engine._frame_t or 0.0), "frame_poses": torch.as_tensor(engine._frame_poses).clone(),
         "frames": int(engine._frames), "cameras": engine._cameras.state_dict(),
         "tracker": engine._tracker.state_dict(),
-        # the task and its controller (PourTask.state_dict; "task" "" = none)
-        **(engine._pour.state_dict() if engine._pour is not None else
+        # the task and its controller (the task's state_dict; "task" "" = none)
+        **(engine._task.state_dict() if engine._task is not None else
            {"task": "", "task_base": 0.0, "control_frame": -1, "pid": {}}),
         # the loaded model extension (model file JSON; "" = none), its initial fill when it
         # differs from the spec's (fill_error), and the steps kept for its time offset
@@ -69,7 +69,7 @@ def load_engine_state(engine, state: dict) -> None:
     engine._volumes = None
     engine._cameras.load_state_dict(state["cameras"])
     engine._tracker.load_state_dict(state["tracker"])
-    engine._pour = PourTask.create(task_from_str(state["task"]), engine, state=state) if state["task"] else None
+    engine._task = create_task(task_from_str(state["task"]), engine, state=state) if state["task"] else None
     engine._history.load_state_dict(state.get("history", []), dev)
 
 

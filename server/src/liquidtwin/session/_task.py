@@ -11,7 +11,7 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..control import PourPID
 from ..control.pour import PourMPC
-from ..control.tilt import PourAxis, pour_axis, tilt_from_upright, tilt_space
+from ..control.tilt import PourAxis, pour_axis, tilt_from_upright, tilt_space, turn_pose
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 
 #: Limits used when a task leaves them at 0: tilt up to 135° at up to 1 rad/s.
@@ -128,11 +128,14 @@ class PourTask:
                 self.ctrl.update(eng._sim_t, poured)
             self.control_frame = eng._frames
         angle, rate, done = self.command if self.is_mpc else (self.ctrl.angle, self.ctrl.rate, self.ctrl.done)
+        pose = eng._frame_poses[self.src]
+        pivot = self.axis.pivot_world(pose)
         return pb.Control(object=self.task.pour.source, tilt_angle_rad=angle, tilt_rate_rad_s=rate,
                           achieved_ml=poured, remaining_ml=max(self.task.pour.volume_ml - poured, 0.0), done=done,
-                          controller=self.task.controller or "pid",
-                          axis_point_m=self.axis.pivot_world(eng._frame_poses[self.src]).tolist(),
-                          axis_direction=self.axis.axis.tolist())
+                          controller=self.task.controller or "pid", axis_point_m=pivot.tolist(),
+                          axis_direction=self.axis.axis.tolist(),
+                          pose=turn_pose(pose, pivot, self.axis.axis, angle - tilt_from_upright(pose)).tolist(),
+                          linear_velocity_m_s=[0.0, 0.0, 0.0], angular_velocity_rad_s=(rate * self.axis.axis).tolist())
 
     def _update_mpc(self, eng) -> tuple[float, float, bool]:
         pose = eng._frame_poses[self.src]
@@ -157,6 +160,17 @@ class PourTask:
                 "pivot_local": torch.as_tensor(self.axis.pivot_local), "axis": torch.as_tensor(self.axis.axis),
                 "pid": {} if self.is_mpc else self.ctrl.state_dict(),
                 "mpc": self.ctrl.state_dict() if self.is_mpc else {}}
+
+
+def create_task(task: pb.Task, eng, *, state: dict | None = None):
+    """The session task for ``task`` (a pour, catch or send) on engine ``eng`` now (EngineError
+    if impossible); ``state``: its checkpoint keys to continue from."""
+    from ._motion_tasks import CatchTask, SendTask
+    kind = task.WhichOneof("kind")
+    cls = {"pour": PourTask, "catch_stream": CatchTask, "send": SendTask}.get(kind)
+    if cls is None:
+        raise EngineError(BAD_REQUEST, f"unknown task kind {kind!r}")
+    return cls.create(task, eng, state=state)
 
 
 def task_to_str(task: pb.Task) -> str:

@@ -30,7 +30,7 @@ from ._cull import cull_fallen
 from ._extension import MAX_TIME_OFFSET_S, History, Prepared, prepare
 from ._volumes import CavityVoxels, MaskVolumes, held_count_fast
 from ._cameras import Cameras, check_pose
-from ._task import PourTask
+from ._task import create_task
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 from .overlay import make_overlay
 
@@ -157,7 +157,7 @@ class SessionEngine:
         self._frames = 0
         self._volumes: tuple | None = None
         self._mask_vol.reset()
-        self._pour: PourTask | None = None
+        self._task = None                      # PourTask, CatchTask or SendTask
 
     # ------------------------------------------------------------------ properties
     @property
@@ -359,19 +359,20 @@ class SessionEngine:
 
     # ------------------------------------------------------------------ task
     def set_task(self, task: pb.Task) -> None:
-        """Set (or, with an empty task, cancel) the pour task; EngineError if impossible.
-        ``task.controller``: "pid" (default; the tracked target volume) or "mpc" (gradients
-        through the session's model from the tracked particles, one update per frame)."""
+        """Set (or, with an empty task, cancel) the task: pour, catch_stream or send; EngineError
+        if impossible. ``task.controller``: for a pour "pid" (default; the tracked target volume)
+        or "mpc" (gradients through the session's model from the tracked particles, one update
+        per frame); catch and send run "mpc" only."""
         if task.WhichOneof("kind") is None:
-            self._pour = None
+            self._task = None
             return
         copy = pb.Task()
         copy.CopyFrom(task)
-        self._pour = PourTask.create(copy, self)
+        self._task = create_task(copy, self)
 
     def control(self) -> pb.Control | None:
         """The controller's command after the latest frame; None without a task."""
-        return None if self._pour is None else self._pour.control(self)
+        return None if self._task is None else self._task.control(self)
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self) -> None:
