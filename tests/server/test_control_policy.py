@@ -172,6 +172,12 @@ def test_command_line_errors_are_clear(tmp_path):
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--targets", "10",
             "--approach-rate", "-1", "--out", str(tmp_path / "out"))
     assert r.returncode != 0 and "--approach-rate: approach_rate must be a positive number" in r.stderr
+    r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--served", "30",
+            "--out", str(tmp_path / "out"))
+    assert r.returncode != 0 and "--served runs the plate and catching MPCs" in r.stderr
+    r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "plate", "--served", "-5",
+            "--out", str(tmp_path / "out"))
+    assert r.returncode != 0 and "--served takes frames per second > 0" in r.stderr
     r = run("-m", "liquidtwin.control.train_policy", "--out", str(tmp_path / "p.pt"), "--motions", "9")
     assert r.returncode == 2 and "source motions 0-7" in r.stderr
     r = run("-m", "liquidtwin.control.train_policy", "--help")

@@ -4,7 +4,6 @@ closed loop with a simulated robot that puts the controlled object where each Co
 Also the geometry they rest on (the screw extrapolation of the source's motion, the plate
 tilt's inverse) against independent constructions, and the refusals of impossible tasks."""
 
-import io
 import math
 
 import numpy as np
@@ -18,6 +17,7 @@ from liquidtwin.control.tilt import turn_pose
 from liquidtwin.generate.catalog import build_setup
 from liquidtwin.generate.generator import scene_spec
 from liquidtwin.scenes.motions import quat_axis_angle
+from session_restore import restored_copy
 from liquidtwin.session import EngineError, SessionEngine
 
 FPS = 30.0
@@ -83,11 +83,7 @@ def test_catch_task_catches_a_moving_stream_closed_loop_and_checkpoints():
         assert np.allclose(c.pose[1:], pose[1:])                 # it only slides along x
         nxt, t = np.asarray(c.pose), t + dt
         if i == 20:                                               # mid-pour: a checkpoint continues bit for bit
-            buf = io.BytesIO()
-            torch.save(eng.state_dict(), buf)
-            buf.seek(0)
-            other = SessionEngine.create(pb.SessionSpec(scene=spec, tracking=pb.OPEN_LOOP))
-            other.load_state_dict(torch.load(buf, weights_only=True))
+            other = restored_copy(eng, spec)
             assert other.control() == c
             for e in (eng, other):
                 e.advance(t, {"source": setup.poses_at(t)[src], "catcher": nxt})

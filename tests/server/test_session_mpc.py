@@ -3,16 +3,15 @@ at each Control's rate about the Control's axis, the engine tracks the liquid fr
 and the MPC (gradients through the session's model, from the tracked particles) stops the pour
 near the ask. The checkpoint continues the controller bit for bit."""
 
-import io
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from liquidtwin_proto import liquidtwin_pb2 as pb
 from liquidtwin.recordings import read_recording
 from liquidtwin.control.tilt import tilt_from_upright, turn_pose
+from session_restore import restored_copy
 from liquidtwin.session import SessionEngine
 
 GOLDEN = Path(__file__).parent / "data" / "golden_pour_dump.mcap"
@@ -51,11 +50,7 @@ def test_mpc_task_pours_the_ask_closed_loop_and_checkpoints(spec):
         axis = np.asarray(c.axis_direction)
         assert abs(np.linalg.norm(axis) - 1.0) < 1e-9 and abs(axis[1]) < 1e-9      # horizontal
         if i == 5:                                 # mid-task: a checkpoint continues it bit for bit
-            buf = io.BytesIO()
-            torch.save(eng.state_dict(), buf)
-            buf.seek(0)
-            other = SessionEngine.create(pb.SessionSpec(scene=spec, tracking=pb.OPEN_LOOP))
-            other.load_state_dict(torch.load(buf, weights_only=True))
+            other = restored_copy(eng, spec)
             assert other.control() == c
             nxt = robot_turn(pose, c, dt)
             for e in (eng, other):
