@@ -1,4 +1,4 @@
-"""A headless robot world that pours through a running liquidtwin server, closed loop.
+"""A headless robot world that pours (or catches) through a running liquidtwin server, closed loop.
 
 The world (``liquidtwin.generate.robot.RobotWorld``) is the generator's true physics with a
 hidden effect (drawn from ``--seed`` unless given) and sensor noise. Every frame the robot
@@ -8,9 +8,14 @@ within the task's limits), then lets the world run one frame. When the controlle
 the source is upright again, it reports what the target *truly* holds — the world's own
 count, which the server never sees.
 
+With ``--task catch`` the scene is the catching one: the robot pours from the source on the
+scene's script (the server does not know it) and slides the catcher at each Control's
+velocity; at the end it reports the share of the liquid the catcher truly holds.
+
     liquidtwin serve --listen tcp/127.0.0.1:7447 &
     python examples/04_robot_world.py --connect tcp/127.0.0.1:7447 --ml 8 --controller mpc \\
         --effect drag --seed 3 --out robot.json
+    python examples/04_robot_world.py --connect tcp/127.0.0.1:7447 --task catch --seed 1
 """
 
 import argparse
@@ -48,7 +53,8 @@ def wait_control(session, stamp: int, timeout: float):
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--connect", default="tcp/127.0.0.1:7447", help="server endpoint (default: %(default)s)")
-    p.add_argument("--scene", default="pour_dump", help="pour scene (default: %(default)s)")
+    p.add_argument("--task", default="pour", choices=("pour", "catch"), help="(default: %(default)s)")
+    p.add_argument("--scene", default=None, help="scene (default: pour_dump; catching for --task catch)")
     p.add_argument("--source", default="cup", help="source container model (default: %(default)s)")
     p.add_argument("--target", default="pan", help="target container model (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="world, effect and noise (default: %(default)s)")
@@ -66,7 +72,9 @@ def main(argv=None) -> dict:
     p.add_argument("--out", help="write the result as JSON here")
     a = p.parse_args(argv)
 
-    world = RobotWorld(a.scene, seed=a.seed, quick=True, effects=a.effect, noise=not a.no_noise,
+    if a.task == "catch":
+        return catch(a)
+    world = RobotWorld(a.scene or "pour_dump", seed=a.seed, quick=True, effects=a.effect, noise=not a.no_noise,
                        choices={"source": a.source, "target": a.target})
     before = world.held_ml()
     frame_ns = int(round(1e9 / a.fps))
@@ -74,19 +82,11 @@ def main(argv=None) -> dict:
     done_at, top, frames = None, 0.0, 0
     t0 = time.perf_counter()
     with Client(connect=a.connect) as client:
-        session = client.create_session(world.spec(), tracking=a.tracking)
-        cams = world.cameras()
-        for name, c in cams.items():
-            session.publish_camera(name, c.K, c.D, c.width, c.height, START_NS)
+        session, cams = open_session(client, world, a.tracking)
         session.set_pour_task("source", "target", a.ml, a.max_angle, a.max_rate, controller=a.controller)
         bar = tqdm(range(int(a.seconds * a.fps)), desc=f"{a.controller} {a.ml:g} ml", unit="frame")
         for i in bar:
-            stamp = START_NS + i * frame_ns
-            poses, masks = world.sense()
-            for name, mask in masks.items():
-                session.publish_mask(name, mask, stamp)
-            session.publish_poses({**poses, **{n: c.pose for n, c in cams.items()}}, stamp)
-            c = wait_control(session, stamp, a.timeout)
+            c = exchange(session, world, cams, START_NS + i * frame_ns, a.timeout)
             frames += 1
             tilt = world.tilt("source")
             if c.done and done_at is None:
@@ -105,13 +105,67 @@ def main(argv=None) -> dict:
               "spilled_ml": before["source"] + before["target"] - after["source"] - after["target"],
               "switched_s": done_at, "upright": bool(world.tilt("source") < 1e-6),
               "max_tilt_deg": math.degrees(top), "frames": frames, "wall_s": time.perf_counter() - t0,
-              "scene": a.scene, "seed": a.seed, "effects": [e.as_dict() for e in world.effects]}
+              "scene": world.setup.name, "seed": a.seed, "effects": [e.as_dict() for e in world.effects]}
     print(f"asked {a.ml:g} ml, poured {result['poured_ml']:.2f} ml (the server thought "
           f"{c.achieved_ml:.2f}), spilled {result['spilled_ml']:.2f} ml, {frames} frames")
-    if a.out:
-        with open(a.out, "w") as f:
+    return save(result, a.out)
+
+
+def open_session(client, world, tracking: str):
+    """A session of the world's stated scene, its cameras' calibrations sent."""
+    session = client.create_session(world.spec(), tracking=tracking)
+    cams = world.cameras()
+    for name, c in cams.items():
+        session.publish_camera(name, c.K, c.D, c.width, c.height, START_NS)
+    return session, cams
+
+
+def exchange(session, world, cams, stamp: int, timeout: float):
+    """One frame: send what the sensors report now (masks, then poses), return the Control."""
+    poses, masks = world.sense()
+    for name, mask in masks.items():
+        session.publish_mask(name, mask, stamp)
+    session.publish_poses({**poses, **{n: c.pose for n, c in cams.items()}}, stamp)
+    return wait_control(session, stamp, timeout)
+
+
+def save(result: dict, out) -> dict:
+    if out:
+        with open(out, "w") as f:
             json.dump(result, f, indent=2)
     return result
+
+
+def catch(a) -> dict:
+    """--task catch: the source pours on its script; the catcher moves at each Control's velocity."""
+    world = RobotWorld(a.scene or "catching", seed=a.seed, quick=True, effects=a.effect, noise=not a.no_noise)
+    before = world.held_ml()
+    src, dst = world.setup.index("source"), world.setup.index("catcher")
+    frame_ns = int(round(1e9 / a.fps))
+    dt = frame_ns * 1e-9
+    x0, frames, t0 = float(world.poses[dst][0]), 0, time.perf_counter()
+    with Client(connect=a.connect) as client:
+        session, cams = open_session(client, world, a.tracking)
+        session.set_catch_task("source", "catcher")
+        bar = tqdm(range(int(round(world.setup.duration * a.fps))), desc="catch", unit="frame")
+        for i in bar:
+            c = exchange(session, world, cams, START_NS + i * frame_ns, a.timeout)
+            frames += 1
+            pose = world.poses[dst].copy()               # a velocity-controlled robot: its own pose + v·dt
+            pose[:3] += [v * dt for v in c.linear_velocity_m_s]
+            world.move({"catcher": pose, "source": world.setup.poses_at(world.t + dt)[src]}, dt)
+            bar.set_postfix(x=f"{100 * pose[0]:.1f}cm", caught=f"{c.achieved_ml:.1f}")
+        session.close()
+    after = world.held_ml()
+    result = {"task": "catch", "source_before_ml": before["source"], "caught_ml": after["catcher"] - before["catcher"],
+              "caught": (after["catcher"] - before["catcher"]) / before["source"], "left_in_source_ml": after["source"],
+              "server_achieved_ml": c.achieved_ml, "catcher_start_x_m": x0, "catcher_end_x_m": float(world.poses[dst][0]),
+              "frames": frames, "wall_s": time.perf_counter() - t0, "scene": world.setup.name, "seed": a.seed,
+              "effects": [e.as_dict() for e in world.effects]}
+    print(f"caught {result['caught_ml']:.2f} of {before['source']:.2f} ml ({100 * result['caught']:.1f} %; the server "
+          f"thought {c.achieved_ml:.2f}), catcher {100 * x0:.1f} -> {100 * result['catcher_end_x_m']:.1f} cm, "
+          f"{frames} frames")
+    return save(result, a.out)
 
 
 if __name__ == "__main__":
