@@ -89,7 +89,9 @@ SAMPLES = {
     "Task": _task(),
     "Control": pb.Control(header=_header(9), object="cup", tilt_angle_rad=1.2, tilt_rate_rad_s=0.3,
                           achieved_ml=40.0, remaining_ml=110.0, done=True, controller="pid",
-                          axis_point_m=[0.03, 0.18, 0.0], axis_direction=[0.0, 0.0, 1.0]),
+                          axis_point_m=[0.03, 0.18, 0.0], axis_direction=[0.0, 0.0, 1.0],
+                          pose=[0.0, 0.2, 0.0, 0.0, 0.0, 0.0998, 0.995], linear_velocity_m_s=[0.0, 0.0, 0.0],
+                          angular_velocity_rad_s=[0.0, 0.0, 0.3]),
     "OverlayInfo": _overlay(),
     "Metrics": pb.Metrics(header=_header(10), input_seq=9, sim_time_s=0.3, iou=0.8, step_ms=12.0,
                           correction_ms=3.0, lag_ms=20.0, sim_lag_s=0.01, particles=4096, steps=4,
@@ -142,6 +144,18 @@ def test_sample_sets_every_field(name):
     message = SAMPLES[name]
     unset = [f.name for f in message.DESCRIPTOR.fields if not _is_set(message, f)]
     assert unset == []
+
+
+@pytest.mark.parametrize("task", [
+    pb.Task(catch_stream=pb.Task.CatchStream(source="jug", catcher="cup", max_speed_m_s=0.4, range_m=0.2),
+            controller="mpc"),
+    pb.Task(send=pb.Task.SendToContainer(object="plate", target="bowl3", max_angle_rad=0.6, max_rate_rad_s=2.0),
+            controller="mpc"),
+])
+def test_the_other_task_kinds_set_every_field_and_round_trip(task):
+    kind = getattr(task, task.WhichOneof("kind"))
+    assert [f.name for f in kind.DESCRIPTOR.fields if not _is_set(kind, f)] == []
+    assert pb.Task.FromString(task.SerializeToString()) == task
 
 
 @pytest.mark.parametrize("name", sorted(SAMPLES))

@@ -7,6 +7,7 @@ that stays put. (It does not catch the mirrored pours: docs/sysid_control.md.)""
 import numpy as np
 import pytest
 import torch
+from torch import nn
 
 from liquidtwin.control.catch import MAX_SPEED, catching_setup, run_catch
 from liquidtwin.control.policy import (HEIGHT, WIDTH, CatchPolicy, Demonstration, PolicyError, load_policy,
@@ -37,6 +38,23 @@ def test_the_thesis_layout_and_the_pooled_one():
     assert out.shape == (3,) and bool((out.abs() <= 1).all())
     with pytest.raises(PolicyError):
         CatchPolicy(pool=0)
+
+
+def test_the_mirrored_network_is_odd_under_a_flip_and_survives_saving(tmp_path):
+    torch.manual_seed(0)
+    policy = CatchPolicy(mirror=True)
+    nn.init.normal_(policy.out.weight, std=0.1)                   # not the hold-still start
+    images = torch.rand(4, HEIGHT, WIDTH) * 5
+    out = policy(images)
+    assert float(out.abs().min()) > 1e-4
+    assert torch.allclose(policy(images.flip(-1)), -out, atol=1e-6)
+    plain = CatchPolicy()
+    plain.load_state_dict(policy.state_dict())
+    assert not torch.allclose(plain(images.flip(-1)), -plain(images), atol=1e-3)   # not by accident
+    save_policy(tmp_path / "m.pt", policy)
+    back, meta = load_policy(tmp_path / "m.pt")
+    assert meta["mirror"] is True and back.mirror
+    assert torch.allclose(back(images), out, atol=5e-3)           # half-precision weights
 
 
 def test_the_observation_moves_with_the_catcher():

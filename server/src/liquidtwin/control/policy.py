@@ -64,13 +64,19 @@ def observation_camera() -> Camera:
 
 
 class CatchPolicy(nn.Module):
-    """The policy network (module doc). ``forward(images (B, H, W))`` → (B,) in [−1, 1]."""
+    """The policy network (module doc). ``forward(images (B, H, W))`` → (B,) in [−1, 1].
 
-    def __init__(self, pool: int = 2, hidden: int = 100):
+    ``mirror``: odd under a left–right flip of the image by construction: the network's
+    pre-tanh output is h(image) − h(flipped image), so a scene mirrored about the catcher
+    (the stream on its other side) gets the opposite velocity. The camera is centred on the
+    catcher, so this is the task's own symmetry (x → −x), built in rather than learned; the
+    thesis's network learned it."""
+
+    def __init__(self, pool: int = 2, hidden: int = 100, mirror: bool = False):
         super().__init__()
         if pool < 1 or hidden < 1:
             raise PolicyError(f"pool and hidden must be >= 1, got {pool}, {hidden}")
-        self.pool_size, self.hidden_size = int(pool), int(hidden)
+        self.pool_size, self.hidden_size, self.mirror = int(pool), int(hidden), bool(mirror)
         self.conv = nn.Conv2d(1, 10, 3, stride=2)
         self.pool = nn.AvgPool2d(pool) if pool > 1 else nn.Identity()
         h, w = (HEIGHT - 3) // 2 + 1, (WIDTH - 3) // 2 + 1
@@ -80,9 +86,15 @@ class CatchPolicy(nn.Module):
         nn.init.zeros_(self.out.bias)
         self.camera = observation_camera()
 
-    def forward(self, images: torch.Tensor) -> torch.Tensor:
+    def _head(self, images: torch.Tensor) -> torch.Tensor:
         z = self.pool(torch.relu(self.conv(images[:, None])))
-        return torch.tanh(self.out(torch.relu(self.hidden(z.flatten(1))))[:, 0])
+        return self.out(torch.relu(self.hidden(z.flatten(1))))[:, 0]
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        h = self._head(images)
+        if self.mirror:
+            h = h - self._head(images.flip(-1))
+        return torch.tanh(h)
 
     def observe(self, x: torch.Tensor, q: torch.Tensor, setup) -> torch.Tensor:
         """(H, W) image of the particles x (N, 3) m seen from the catcher at x = q[0] m
@@ -102,7 +114,7 @@ def save_policy(path, policy: CatchPolicy, meta: dict | None = None) -> Path:
     """Write the weights (half precision), the layout and ``meta`` (plain data); read with
     :func:`load_policy` (which runs them in single precision)."""
     return _weights.write(path, FORMAT, policy, {"pool": policy.pool_size, "hidden": policy.hidden_size,
-                                                 **(meta or {})}, half=True)
+                                                 "mirror": policy.mirror, **(meta or {})}, half=True)
 
 
 def load_policy(path=None) -> tuple[CatchPolicy, dict]:
@@ -111,7 +123,7 @@ def load_policy(path=None) -> tuple[CatchPolicy, dict]:
     path = Path(DEFAULT_POLICY if path is None else path)
     meta, state_dict = _weights.read(path, FORMAT, PolicyError, "catching policy")
     try:
-        policy = CatchPolicy(int(meta["pool"]), int(meta["hidden"]))
+        policy = CatchPolicy(int(meta["pool"]), int(meta["hidden"]), bool(meta.get("mirror", False)))
         policy.load_state_dict(state_dict)
     except (KeyError, TypeError, ValueError, RuntimeError) as e:
         raise PolicyError(f"{path}: policy unreadable ({e})") from e

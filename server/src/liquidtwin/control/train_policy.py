@@ -103,6 +103,9 @@ def main(argv=None) -> int:
                         "uniform draws)")
     p.add_argument("--pool", type=int, default=2, help="average pool after the conv (default: %(default)s; "
                                                        "1 = the thesis's 4.7 M-weight network)")
+    p.add_argument("--mirror", action="store_true",
+                   help="a network odd under a left-right flip of its image (CatchPolicy(mirror=True)): "
+                        "the x -> -x symmetry of the task built in")
     p.add_argument("--full", action="store_true", help="the full-size scene (default: the quick one)")
     p.add_argument("--horizon", type=int, default=10, help="demonstrating MPC's horizon (default: %(default)s)")
     p.add_argument("--step-size", type=float, default=0.1, help="demonstrating MPC's step (default: %(default)s)")
@@ -125,7 +128,7 @@ def main(argv=None) -> int:
     t_demo = time.perf_counter() - t0
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
-    policy = CatchPolicy(pool=a.pool)
+    policy = CatchPolicy(pool=a.pool, mirror=a.mirror)
     log = train(policy, model, demos, iterations=a.iterations, lr=a.lr, rollout=a.rollout, noise_m=a.noise,
                 active_share=a.active_share, per_demo=a.per_demo, seed=a.seed, progress=not a.no_progress)
     meta = {"motions": motions, "quick": not a.full, "seed": a.seed, "iterations": a.iterations, "lr": a.lr,
