@@ -45,7 +45,7 @@ def test_the_mirrored_network_is_odd_under_a_flip_and_survives_saving(tmp_path):
     policy = CatchPolicy(mirror=True)
     nn.init.normal_(policy.out.weight, std=0.1)                   # not the hold-still start
     images = torch.rand(4, HEIGHT, WIDTH) * 5
-    out = policy(images)
+    out = policy(images).detach()
     assert float(out.abs().min()) > 1e-4
     assert torch.allclose(policy(images.flip(-1)), -out, atol=1e-6)
     plain = CatchPolicy()
@@ -155,10 +155,12 @@ def test_policy_files_round_trip_and_bad_ones_are_refused(tmp_path):
         load_policy(tmp_path / "bad.pt")
 
 
-def test_the_shipped_policy_catches_a_pour():
-    motion = 2
+@pytest.mark.parametrize("motion, trained", [(2, True), (5, False)])
+def test_the_shipped_policy_catches_a_pour(motion, trained):
+    """Motion 2 is a training motion; motion 5 is its mirror image (pours towards +x, the lip
+    drifting the other way), never seen in training: the shipped network is mirror-odd."""
     policy, meta = load_policy()
-    assert motion in meta["motions"] and meta["pool"] == 2
+    assert (motion in meta["motions"]) == trained and meta["pool"] == 2 and meta["mirror"]
     setup, model, state = _pour(motion)
     r = run_catch(setup, model, state, policy=policy)
     s = state
