@@ -90,7 +90,7 @@ class CatchParts:
     object models, the catcher's pose at rest (7,) (its rim height and z count), and
     ``poses_at(t)`` → (M, 7) the scene's poses at time t s (the source where it will be; the
     catcher where it rests). From a catalogue setup: :meth:`of`; a session builds its own
-    from the frames it has seen (:mod:`liquidtwin.session._task`)."""
+    from the frames it has seen (:mod:`liquidtwin.session._motion_tasks`)."""
 
     src: int
     src_obj: object
@@ -243,9 +243,7 @@ class CatchMPC:
     def update(self, state, q: torch.Tensor, space: ControlSpace, loss: CatchLoss, elapsed: int = 1) -> torch.Tensor:
         """One gradient step on the plan; the control (m/s, (1,)) to run until the next update.
         ``elapsed`` > 1: the plan's first elapsed − 1 steps are past."""
-        if elapsed > 1:
-            k = min(int(elapsed) - 1, self.mpc.plan.shape[0] - 1)
-            self.mpc.plan = torch.cat([self.mpc.plan[k:], self.mpc.plan[-1:].expand(k, -1)])
+        self.mpc.skip(elapsed)
         self.mpc.space, self.mpc.loss = space, loss
         return self.mpc.update(state, q)[0]
 

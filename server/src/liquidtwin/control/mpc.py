@@ -107,6 +107,13 @@ class MPC:
             total = total + self.loss(s, k, q[k])
         return total
 
+    def skip(self, steps: int) -> None:
+        """Move the plan on by ``steps`` − 1 more steps (:meth:`update` shifts one): for a
+        caller that updates once every ``steps`` model steps (a session, once per frame)."""
+        if steps > 1:
+            k = min(int(steps) - 1, self.plan.shape[0] - 1)
+            self.plan = torch.cat([self.plan[k:], self.plan[-1:].expand(k, -1)])
+
     def update(self, state: FluidState, q0: torch.Tensor) -> tuple[torch.Tensor, float]:
         """One gradient step on the whole plan; returns (the control to execute now (D,),
         the horizon loss before the step). The plan then shifts by one."""

@@ -150,9 +150,7 @@ class PourMPC:
             self.mpc.space = space
         if lip is not None:
             self.lip = torch.as_tensor(lip).to(state.x)
-        if elapsed > 1:                      # the plan's first elapsed-1 steps are past (MPC shifted one)
-            k = min(int(elapsed) - 1, self.mpc.plan.shape[0] - 1)
-            self.mpc.plan = torch.cat([self.mpc.plan[k:], self.mpc.plan[-1:].expand(k, -1)])
+        self.mpc.skip(elapsed)               # the plan's first elapsed-1 steps are past
         space = self.mpc.space
         prev = self.steps
         if self.updates:

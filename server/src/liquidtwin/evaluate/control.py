@@ -66,7 +66,8 @@ def configure(p) -> None:
     p.add_argument("--served", type=float, default=0.0, metavar="FPS",
                    help="plate / catching MPC: run the task as a session serves it — set on a session engine, "
                         "one Control per frame at FPS, a simulated robot moving the object to each Control's "
-                        "pose (evaluate.served); default 0: the offline controller, one update per model step")
+                        "pose (evaluate.served; the session's own horizon and steps: --horizon and --step-size do not "
+                        "apply); default 0: the offline controller, one update per model step")
     p.add_argument("--seed", type=int, default=0, help="scene draw (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=2, help="targets run in parallel (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")

@@ -220,9 +220,7 @@ class SendTask:
 
     def _update(self, eng):
         elapsed = _elapsed(eng, self.last_sim_t)
-        if elapsed > 1:                                 # the plan's first elapsed-1 steps are past
-            k = min(elapsed - 1, HORIZON - 1)
-            self.mpc.plan = torch.cat([self.mpc.plan[k:], self.mpc.plan[-1:].expand(k, -1)])
+        self.mpc.skip(elapsed)                          # the plan's first elapsed-1 steps are past
         space = self._space(eng)
         q = torch.as_tensor(tilt2_of(eng._frame_poses[self.obj], self.rest), dtype=torch.float64)
         self.mpc.model, self.mpc.space = eng._model, space
