@@ -65,6 +65,64 @@ struct Grid {
   }
 
   T value(const T p[3]) const { T v, o; sample(p, v, o); return v + o; }
+
+  // value(p) and its derivative d value / d p (3), as autograd differentiates sample_local:
+  // the clamp to the box passes gradient strictly inside it, grid_sample's border clip passes
+  // it strictly inside [0, n - 1], the trilinear weights are differentiated with the corners
+  // fixed, and the distance to the box has gradient (u - uc) cell / |.| (0 at distance 0).
+  T value_grad(const T p[3], T grad[3]) const {
+    T ix[3], dix[3], du[3];
+    T out2 = 0;
+    for (int a = 0; a < 3; ++a) {
+      T u = (p[a] - origin[a]) / cell;
+      T uc = std::min(std::max(u, T(0)), extent[a]);
+      const T duc = (u > T(0) && u < extent[a]) ? T(1) : T(0);
+      du[a] = (u - uc) * cell;
+      out2 += du[a] * du[a];
+      T g = T(2) * uc / extent[a] - T(1);
+      T c = ((g + T(1)) / T(2)) * static_cast<T>(n[a] - 1);
+      const T dc = (c > T(0) && c < static_cast<T>(n[a] - 1)) ? T(1) : T(0);
+      ix[a] = std::min(static_cast<T>(n[a] - 1), std::max(c, T(0)));
+      // d ix / d p = clip' * (n - 1) / 2 * 2 / extent * clamp' / cell
+      dix[a] = dc * (static_cast<T>(n[a] - 1) / T(2)) * (T(2) / extent[a]) * duc / cell;
+    }
+    const T outside = std::sqrt(out2);
+    const int64_t x0 = static_cast<int64_t>(std::floor(ix[0]));
+    const int64_t y0 = static_cast<int64_t>(std::floor(ix[1]));
+    const int64_t z0 = static_cast<int64_t>(std::floor(ix[2]));
+    const int64_t x1 = x0 + 1, y1 = y0 + 1, z1 = z0 + 1;
+    const T ax = static_cast<T>(x1) - ix[0], bx = ix[0] - static_cast<T>(x0);
+    const T ay = static_cast<T>(y1) - ix[1], by = ix[1] - static_cast<T>(y0);
+    const T az = static_cast<T>(z1) - ix[2], bz = ix[2] - static_cast<T>(z0);
+    const bool xin = x1 < n[0], yin = y1 < n[1], zin = z1 < n[2];
+    // Corner values (0 where grid_sample's corner falls outside the grid).
+    const T v000 = node(x0, y0, z0);
+    const T v100 = xin ? node(x1, y0, z0) : T(0);
+    const T v010 = yin ? node(x0, y1, z0) : T(0);
+    const T v110 = (xin && yin) ? node(x1, y1, z0) : T(0);
+    const T v001 = zin ? node(x0, y0, z1) : T(0);
+    const T v101 = (xin && zin) ? node(x1, y0, z1) : T(0);
+    const T v011 = (yin && zin) ? node(x0, y1, z1) : T(0);
+    const T v111 = (xin && yin && zin) ? node(x1, y1, z1) : T(0);
+    T r = 0;
+    r += v000 * (ax * ay * az);
+    r += v100 * (bx * ay * az);
+    r += v010 * (ax * by * az);
+    r += v110 * (bx * by * az);
+    r += v001 * (ax * ay * bz);
+    r += v101 * (bx * ay * bz);
+    r += v011 * (ax * by * bz);
+    r += v111 * (bx * by * bz);
+    const T gx = (v100 - v000) * ay * az + (v110 - v010) * by * az + (v101 - v001) * ay * bz + (v111 - v011) * by * bz;
+    const T gy = (v010 - v000) * ax * az + (v110 - v100) * bx * az + (v011 - v001) * ax * bz + (v111 - v101) * bx * bz;
+    const T gz = (v001 - v000) * ax * ay + (v101 - v100) * bx * ay + (v011 - v010) * ax * by + (v111 - v110) * bx * by;
+    const T gi[3] = {gx, gy, gz};
+    for (int a = 0; a < 3; ++a) {
+      grad[a] = gi[a] * dix[a];
+      if (outside > T(0)) grad[a] += du[a] / outside;  // du = 0 on axes inside the box
+    }
+    return r + outside;
+  }
   T lower_bound(const T p[3]) const { T v, o; sample(p, v, o); return std::max(o, v - o); }
 };
 
@@ -366,6 +424,271 @@ torch::Tensor collide_pieces(torch::Tensor x, torch::Tensor delta, torch::Tensor
     });
   });
   return out;
+}
+
+
+// ---------------------------------------------------------------------------------------------
+// Backward of collide_pieces. Every planned particle is replayed piece by piece (the same
+// arithmetic as the forward) and then reversed: the push p += ReLU(c − SDF(p)) n̂ is
+// differentiated through the centre sample (its nearest object), the six stencil samples
+// (each its nearest object), F.normalize, the object frames local = Rᵀ(p − t), and the
+// frames' poses (nlerp between the normalised end quaternions, lerp of translations, the
+// end pose itself at the last piece). Pose gradients are summed per row first and reduced in
+// row order, so the result does not depend on the thread count.
+
+// d/dq̂ of R(q̂) for a unit quaternion q̂ = (x, y, z, w), given R̄ (row-major 3×3).
+template <typename T>
+void quat_matrix_backward(const T q[4], const T Rb[9], T g[4]) {
+  const T x = q[0], y = q[1], z = q[2], w = q[3];
+  g[0] = T(2) * (y * Rb[1] + z * Rb[2] + y * Rb[3] - T(2) * x * Rb[4] - w * Rb[5] + z * Rb[6] + w * Rb[7] -
+                 T(2) * x * Rb[8]);
+  g[1] = T(2) * (-T(2) * y * Rb[0] + x * Rb[1] + w * Rb[2] + x * Rb[3] + z * Rb[5] - w * Rb[6] + z * Rb[7] -
+                 T(2) * y * Rb[8]);
+  g[2] = T(2) * (-T(2) * z * Rb[0] - w * Rb[1] + x * Rb[2] + w * Rb[3] - T(2) * z * Rb[4] + y * Rb[5] +
+                 x * Rb[6] + y * Rb[7]);
+  g[3] = T(2) * (-z * Rb[1] + y * Rb[2] + z * Rb[3] - x * Rb[5] - y * Rb[6] + x * Rb[7]);
+}
+
+// Adjoint of q / |q| at raw q: (ḡ − q̂ (q̂·ḡ)) / |q|, in place.
+template <typename T>
+void normalize_backward(const T q[4], T g[4]) {
+  const T nn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  T dot = 0;
+  for (int a = 0; a < 4; ++a) dot += q[a] / nn * g[a];
+  for (int a = 0; a < 4; ++a) g[a] = (g[a] - q[a] / nn * dot) / nn;
+}
+
+// Per row and object: adjoints of t0, t1 (3 each), unit q0, unit (sign-flipped) q1, and the
+// unit end quaternion used at last pieces (4 each).
+constexpr int kPoseAcc = 18;
+
+std::vector<torch::Tensor> collide_pieces_backward(
+    torch::Tensor x, torch::Tensor delta, torch::Tensor pose_a, torch::Tensor pose_b,
+    std::vector<torch::Tensor> grids, torch::Tensor origins, torch::Tensor cells, torch::Tensor idx,
+    torch::Tensor active, torch::Tensor pieces, double collision_distance, double dilation, bool fixed,
+    torch::Tensor grad_out) {
+  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.device().is_cpu(), "positions must be CPU (N, 3)");
+  TORCH_CHECK(delta.sizes() == x.sizes() && grad_out.sizes() == x.sizes(), "delta and grad must match positions");
+  x = x.contiguous();
+  delta = delta.to(x.scalar_type()).contiguous();
+  grad_out = grad_out.to(x.scalar_type()).contiguous();
+  pose_a = pose_a.to(x.scalar_type()).contiguous();
+  pose_b = pose_b.to(x.scalar_type()).contiguous();
+  idx = idx.to(torch::kInt64).contiguous();
+  pieces = pieces.to(torch::kInt64).contiguous();
+  active = active.to(torch::kUInt8).contiguous();
+  const int64_t n = x.size(0), m = static_cast<int64_t>(grids.size()), rows = idx.size(0);
+  TORCH_CHECK(pose_a.dim() == 2 && pose_a.size(0) == m && pose_a.size(1) == 7 && pose_b.sizes() == pose_a.sizes(),
+              "poses must be (M, 7)");
+  TORCH_CHECK(pieces.size(0) == rows && active.dim() == 2 && active.size(0) == rows && active.size(1) == m,
+              "plan tensors must be idx (R,), active (R, M), pieces (R,)");
+  auto gx = grad_out.clone();
+  auto gd = grad_out.clone();
+  auto gpa = torch::zeros({m, 7}, x.options());
+  auto gpb = torch::zeros({m, 7}, x.options());
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "collide_pieces_backward", [&] {
+    using T = scalar_t;
+    auto gs = make_grids<T>(grids, origins, cells);
+    std::vector<Motion<T>> motion(m);
+    const T* ppa = pose_a.data_ptr<T>();
+    const T* ppb = pose_b.data_ptr<T>();
+    std::vector<T> sign(m, T(1));
+    for (int64_t j = 0; j < m; ++j) {
+      motion[j].set(ppa + 7 * j, ppb + 7 * j);
+      T dot = 0, na = 0, nb = 0;
+      for (int a = 0; a < 4; ++a) {
+        dot += ppa[7 * j + 3 + a] * ppb[7 * j + 3 + a];
+        na += ppa[7 * j + 3 + a] * ppa[7 * j + 3 + a];
+        nb += ppb[7 * j + 3 + a] * ppb[7 * j + 3 + a];
+      }
+      sign[j] = (dot / std::sqrt(na) / std::sqrt(nb)) < 0 ? T(-1) : T(1);
+    }
+    const T* px = x.data_ptr<T>();
+    const T* pd = delta.data_ptr<T>();
+    const T* pg = grad_out.data_ptr<T>();
+    const int64_t* pi = idx.data_ptr<int64_t>();
+    const int64_t* ps = pieces.data_ptr<int64_t>();
+    const uint8_t* pa = active.data_ptr<uint8_t>();
+    T* ogx = gx.data_ptr<T>();
+    T* ogd = gd.data_ptr<T>();
+    const T cd = static_cast<T>(collision_distance), dil = static_cast<T>(dilation);
+    const T inf = std::numeric_limits<T>::infinity();
+    for (int64_t r = 0; r < rows; ++r)
+      TORCH_CHECK(pi[r] >= 0 && pi[r] < n && ps[r] >= 1, "bad collision plan (index or piece count)");
+    std::vector<T> acc(static_cast<size_t>(rows * m * kPoseAcc), T(0));
+    at::parallel_for(0, rows, 16, [&](int64_t b, int64_t e) {
+      std::vector<Frame<T>> fr(m);
+      std::vector<int64_t> act;
+      std::vector<T> after_add;
+      struct Piece {  // a piece's push: centre value, nearest objects, unnormalised normal
+        T centre, g[3];
+        int64_t jc, jl[3], jh[3];
+        bool pen;
+      };
+      std::vector<Piece> rec;
+      std::vector<T> Rb(m * 9), tb(m * 3);
+      std::vector<uint8_t> used(m);
+      // Frames of the active objects at piece k of S.
+      auto frames = [&](int64_t k, int64_t S) {
+        for (int64_t j : act) {
+          if (fixed) motion[j].frame(T(1), true, fr[j]);
+          else motion[j].frame(static_cast<T>(static_cast<double>(k) / static_cast<double>(S)), k == S, fr[j]);
+        }
+      };
+      // min over the active objects of the SDF at p; the nearest object in `arg`.
+      auto nearest = [&](const T p[3], int64_t& arg) {
+        T best = inf;
+        arg = -1;
+        for (int64_t j : act) {
+          T loc[3];
+          fr[j].local(p, loc);
+          const T v = gs[j].value(loc);
+          if (arg < 0 || v < best) { best = v; arg = j; }  // the first on ties, as std::min
+        }
+        return best;
+      };
+      // Adjoint of value w at point p of object j: p̄ += R gL w, and R̄, t̄ of object j.
+      auto pull = [&](int64_t j, const T p[3], T w, T pbar[3]) {
+        if (j < 0 || w == T(0)) return;
+        T loc[3], gL[3];
+        fr[j].local(p, loc);
+        gs[j].value_grad(loc, gL);
+        const T* R = fr[j].R;
+        const T dd[3] = {p[0] - fr[j].t[0], p[1] - fr[j].t[1], p[2] - fr[j].t[2]};
+        for (int c = 0; c < 3; ++c) {
+          const T back = (R[3 * c] * gL[0] + R[3 * c + 1] * gL[1] + R[3 * c + 2] * gL[2]) * w;
+          pbar[c] += back;
+          tb[3 * j + c] -= back;
+          for (int a = 0; a < 3; ++a) Rb[9 * j + 3 * c + a] += dd[c] * gL[a] * w;
+        }
+        used[j] = 1;
+      };
+      for (int64_t r = b; r < e; ++r) {
+        const int64_t i = pi[r], S = ps[r];
+        act.clear();
+        for (int64_t j = 0; j < m; ++j) if (pa[r * m + j]) act.push_back(j);
+        T p[3], d[3];
+        for (int a = 0; a < 3; ++a) { p[a] = px[3 * i + a]; d[a] = pd[3 * i + a] / static_cast<T>(S); }
+        after_add.assign(static_cast<size_t>(3 * S), T(0));
+        rec.resize(static_cast<size_t>(S));
+        // Forward replay (as collide_pieces), keeping what the reverse needs of each piece.
+        for (int64_t k = 1; k <= S; ++k) {
+          Piece& pc = rec[k - 1];
+          for (int a = 0; a < 3; ++a) { p[a] = p[a] + d[a]; after_add[3 * (k - 1) + a] = p[a]; }
+          frames(k, S);
+          pc.centre = nearest(p, pc.jc);
+          pc.pen = pc.centre < cd;
+          if (!pc.pen) continue;
+          for (int a = 0; a < 3; ++a) {
+            T q[3] = {p[0], p[1], p[2]};
+            q[a] = p[a] + -dil;
+            const T lo = nearest(q, pc.jl[a]);
+            q[a] = p[a] + dil;
+            const T hi = nearest(q, pc.jh[a]);
+            pc.g[a] = hi - lo;
+          }
+          T len = std::max(std::sqrt(pc.g[0] * pc.g[0] + pc.g[1] * pc.g[1] + pc.g[2] * pc.g[2]),
+                           static_cast<T>(1e-12));
+          const T depth = cd - pc.centre;
+          for (int a = 0; a < 3; ++a) p[a] = p[a] + depth * (pc.g[a] / len);
+        }
+        // Reverse.
+        T P[3] = {pg[3 * i], pg[3 * i + 1], pg[3 * i + 2]};
+        T dbar[3] = {0, 0, 0};
+        T* rowacc = acc.data() + static_cast<size_t>(r * m * kPoseAcc);
+        for (int64_t k = S; k >= 1; --k) {
+          const T* p1 = after_add.data() + 3 * (k - 1);
+          const Piece& pc = rec[k - 1];
+          T pbar[3] = {P[0], P[1], P[2]};
+          if (pc.pen) {
+            frames(k, S);
+            std::fill(Rb.begin(), Rb.end(), T(0));
+            std::fill(tb.begin(), tb.end(), T(0));
+            std::fill(used.begin(), used.end(), 0);
+            const T* g = pc.g;
+            const int64_t jc = pc.jc;
+            const int64_t* jl = pc.jl;
+            const int64_t* jh = pc.jh;
+            const T centre = pc.centre;
+            T qlo[3][3], qhi[3][3];
+            for (int a = 0; a < 3; ++a) {
+              for (int c = 0; c < 3; ++c) { qlo[a][c] = p1[c]; qhi[a][c] = p1[c]; }
+              qlo[a][a] = p1[a] + -dil;
+              qhi[a][a] = p1[a] + dil;
+            }
+            const T raw = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+            const T len = std::max(raw, static_cast<T>(1e-12));
+            const T depth = cd - centre;
+            T nrm[3], nbar[3];
+            T depth_bar = 0;
+            for (int a = 0; a < 3; ++a) { nrm[a] = g[a] / len; depth_bar += P[a] * nrm[a]; nbar[a] = depth * P[a]; }
+            T gbar[3];
+            if (raw > static_cast<T>(1e-12)) {
+              T dot = nrm[0] * nbar[0] + nrm[1] * nbar[1] + nrm[2] * nbar[2];
+              for (int a = 0; a < 3; ++a) gbar[a] = (nbar[a] - nrm[a] * dot) / len;
+            } else {
+              for (int a = 0; a < 3; ++a) gbar[a] = nbar[a] / len;
+            }
+            pull(jc, p1, -depth_bar, pbar);
+            for (int a = 0; a < 3; ++a) {
+              pull(jh[a], qhi[a], gbar[a], pbar);
+              pull(jl[a], qlo[a], -gbar[a], pbar);
+            }
+            // Frame adjoints → pose adjoints of this row.
+            const bool last = fixed || k == S;
+            const T f = static_cast<T>(static_cast<double>(k) / static_cast<double>(S));
+            for (int64_t j : act) {
+              if (!used[j]) continue;
+              T* A = rowacc + j * kPoseAcc;  // t0 0..2, t1 3..5, q0 6..9, q1 10..13, qend 14..17
+              const Motion<T>& mo = motion[j];
+              T gq[4];
+              if (last) {
+                T qhat[4];
+                const T nn = std::sqrt(mo.qb[0] * mo.qb[0] + mo.qb[1] * mo.qb[1] + mo.qb[2] * mo.qb[2] +
+                                       mo.qb[3] * mo.qb[3]);
+                for (int a = 0; a < 4; ++a) qhat[a] = mo.qb[a] / nn;
+                quat_matrix_backward(qhat, Rb.data() + 9 * j, gq);
+                for (int a = 0; a < 4; ++a) A[14 + a] += gq[a];
+                for (int a = 0; a < 3; ++a) A[3 + a] += tb[3 * j + a];
+              } else {
+                T qq[4], qn[4];
+                for (int a = 0; a < 4; ++a) qq[a] = mo.q0[a] + (mo.q1[a] - mo.q0[a]) * f;
+                const T nn = std::sqrt(qq[0] * qq[0] + qq[1] * qq[1] + qq[2] * qq[2] + qq[3] * qq[3]);
+                for (int a = 0; a < 4; ++a) qn[a] = qq[a] / nn;
+                quat_matrix_backward(qn, Rb.data() + 9 * j, gq);
+                normalize_backward(qn, gq);   // Frame::set normalises the (unit) nlerp again
+                normalize_backward(qq, gq);   // the nlerp's normalisation
+                for (int a = 0; a < 4; ++a) { A[6 + a] += (T(1) - f) * gq[a]; A[10 + a] += f * gq[a]; }
+                for (int a = 0; a < 3; ++a) { A[a] += (T(1) - f) * tb[3 * j + a]; A[3 + a] += f * tb[3 * j + a]; }
+              }
+            }
+          }
+          for (int a = 0; a < 3; ++a) { dbar[a] += pbar[a]; P[a] = pbar[a]; }
+        }
+        for (int a = 0; a < 3; ++a) { ogx[3 * i + a] = P[a]; ogd[3 * i + a] = dbar[a] / static_cast<T>(S); }
+      }
+    });
+    // Reduce the rows in order, then through the normalisations of the end quaternions.
+    T* oa = gpa.data_ptr<T>();
+    T* ob = gpb.data_ptr<T>();
+    for (int64_t j = 0; j < m; ++j) {
+      T sum[kPoseAcc] = {};
+      for (int64_t r = 0; r < rows; ++r) {
+        const T* A = acc.data() + static_cast<size_t>((r * m + j) * kPoseAcc);
+        for (int c = 0; c < kPoseAcc; ++c) sum[c] += A[c];
+      }
+      const T* qa = ppa + 7 * j + 3;
+      const T* qb = ppb + 7 * j + 3;
+      T g0[4], g1[4], ge[4];
+      for (int a = 0; a < 4; ++a) { g0[a] = sum[6 + a]; g1[a] = sum[10 + a] * sign[j]; ge[a] = sum[14 + a]; }
+      normalize_backward(qa, g0);
+      normalize_backward(qb, g1);
+      normalize_backward(qb, ge);
+      for (int a = 0; a < 3; ++a) { oa[7 * j + a] = sum[a]; ob[7 * j + a] = sum[3 + a]; }
+      for (int a = 0; a < 4; ++a) { oa[7 * j + 3 + a] = g0[a]; ob[7 * j + 3 + a] = g1[a] + ge[a]; }
+    }
+  });
+  return {gx, gd, gpa, gpb};
 }
 
 }  // namespace collide

@@ -2,7 +2,8 @@
 
 References: a re-implementation of the old global anti-clipping scheme (every active particle
 against every object, one global piece count from the thinnest wall and the largest sweep),
-the pure-torch planner, analytic SDFs of the cup, bowl and floor, and autograd gradcheck.
+the pure-torch planner, analytic SDFs of the cup, bowl and floor, autograd gradcheck, and the
+torch path's autograd gradients for the C++ backward.
 """
 
 import math
@@ -133,11 +134,14 @@ def test_native_path_matches_torch_path(objects, dtype, tol):
     pushed = ((slow - (x + delta)).norm(dim=1) > 1e-5).sum()
     assert int(pushed) > 40  # the move really hit walls
     assert float((fast - slow).abs().max()) < tol
-    # The model entry point takes the native path without gradients, the torch path with.
+    # The model entry point takes the native path, with or without gradients (same forward).
     with torch.no_grad():
         torch.testing.assert_close(lt.collide_move(m, x, delta, pa, pb), fast, rtol=0, atol=0)
     xg = x.clone().requires_grad_()
-    torch.testing.assert_close(lt.collide_move(m, xg, delta, pa, pb).detach(), slow, rtol=0, atol=0)
+    torch.testing.assert_close(lt.collide_move(m, xg, delta, pa, pb).detach(), fast, rtol=0, atol=0)
+    # The torch backend keeps the torch path.
+    torch.testing.assert_close(lt.collide_move(_model(objects, backend="torch"), xg, delta, pa, pb).detach(), slow,
+                               rtol=0, atol=0)
     # Pose fixed during the move (constraint iterations): the same agreement.
     plan = collide.plan_collisions(objects, x, delta, pb, pb, m.collision_distance, m.max_pieces, native=True)
     a = collide.move_native(objects, x, delta, pb, pb, plan, m.collision_distance, m._normal_dilation)
@@ -208,11 +212,43 @@ def test_missing_extension_falls_back_to_the_same_result(objects, monkeypatch):
     assert float((fast - slow).abs().max()) < 1e-6
 
 
-def test_torch_path_gradients_positions_moves_and_poses(objects):
-    """gradcheck through pieces of different lengths (per-particle pose fractions)."""
+@needs_native
+@pytest.mark.parametrize("fixed", [False, True])
+@pytest.mark.parametrize("dtype,tol", [(torch.float32, 2e-5), (torch.float64, 1e-12)])
+def test_native_backward_matches_torch_autograd(objects, dtype, tol, fixed):
+    """The C++ backward gives the gradients autograd takes through the torch path, for
+    positions, moves and both poses, on a move that pushes many particles off walls in many
+    pieces (and with the objects fixed, as in the constraint iterations)."""
+    x, delta, pa, pb = _scene(objects, dtype, seed=5)
+    if fixed:
+        pa = pb
+    m = _model(objects)
+    plan = collide.plan_collisions(objects, x, delta, pa, pb, m.collision_distance, m.max_pieces, native=True)
+    assert int(plan.pieces[0]) >= 10
+    w = torch.randn(x.shape, generator=torch.Generator().manual_seed(0)).to(dtype)
+    grads = []
+    for move in (collide.move_torch, collide.move_native_grad):
+        xs, ds, pas, pbs = (t.clone().requires_grad_() for t in (x, delta, pa, pb))
+        if fixed:
+            pas = pbs
+        out = move(objects, xs, ds, pas, pbs, plan, m.collision_distance, m._normal_dilation)
+        (out * w).sum().backward()
+        grads.append([out.detach(), xs.grad, ds.grad, pbs.grad] + ([] if fixed else [pas.grad]))
+    assert float((grads[0][0] - (x + delta)).norm(dim=1).max()) > 1e-3  # walls were hit
+    for ref, got in zip(*grads):
+        scale = float(ref.abs().max())
+        assert scale > 0.1                       # every gradient is really exercised
+        assert float((got - ref).abs().max()) <= tol * max(scale, 1.0)
+    # The model entry point takes the native backward when a gradient is needed.
+    xs = x.clone().requires_grad_()
+    out = lt.collide_move(m, xs, delta, pa, pb)
+    assert type(out.grad_fn).__name__ == "_CollidePiecesBackward"
+
+
+def _small_case(backend):
     cup = shapes.cup_grid(**CUP, cell=0.002).to(dtype=torch.float64)
-    floor = objects[2].to(dtype=torch.float64)
-    m = _model([cup, floor], backend="torch", collision_distance=0.0015)
+    floor = shapes.floor_grid(half_xz=0.3, depth=0.02, cell=0.005).to(dtype=torch.float64)
+    m = _model([cup, floor], backend=backend, collision_distance=0.0015)
     g = torch.Generator().manual_seed(3)
     x = torch.tensor([[0.033, 0.03, 0.0], [0.0, 0.0045, 0.002], [-0.02, 0.05, 0.01], [0.09, FLOOR_TOP + 0.001, 0.0],
                       [0.040, 0.06, 0.0]], dtype=torch.float64)
@@ -224,13 +260,23 @@ def test_torch_path_gradients_positions_moves_and_poses(objects):
     floor_pose[1] = FLOOR_TOP
     pa = torch.stack([_turn(0.0), floor_pose])
     pb = torch.stack([_turn(0.05, shift=(0.001, 0.0, 0.0)), floor_pose])
+    return m, x, delta, pa, pb
+
+
+@pytest.mark.parametrize("backend", ["torch", pytest.param("fused", marks=needs_native)])
+def test_gradients_positions_moves_and_poses(objects, backend):
+    """gradcheck (finite differences) through pieces of different lengths (per-particle pose
+    fractions), on the torch path and on the C++ backward."""
+    m, x, delta, pa, pb = _small_case(backend)
     plan = collide.plan_collisions(m.objects, x, delta, pa, pb, m.collision_distance, m.max_pieces)
     assert len(set(plan.pieces.tolist())) >= 2  # pieces of different lengths in one move
     moved = lt.collide_move(m, x, delta, pa, pb)
     assert float((moved - (x + delta)).norm(dim=1).max()) > 1e-4  # something was pushed
 
     def f(x, delta, pa, pb):
-        return lt.collide_move(m, x, delta, pa, pb)
+        out = lt.collide_move(m, x, delta, pa, pb)
+        assert (type(out.grad_fn).__name__ == "_CollidePiecesBackward") == (backend == "fused")
+        return out
     args = tuple(t.clone().requires_grad_() for t in (x, delta, pa, pb))
     assert torch.autograd.gradcheck(f, args, eps=1e-7, atol=1e-5, rtol=1e-3)
 

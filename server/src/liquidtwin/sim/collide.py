@@ -17,7 +17,8 @@ planned per object, then carried out piece by piece:
   (they read +inf), and the 6 stencil samples are only taken where the centre value is
   below c (elsewhere the push is exactly zero).
   :func:`move_torch` is differentiable (autograd w.r.t. positions, moves and poses);
-  :func:`move_native` is one C++/OpenMP call for when no gradient is needed.
+  :func:`move_native` is one C++/OpenMP call for when no gradient is needed, and
+  :func:`move_native_grad` the same call with a C++ backward pass for when one is.
 """
 
 from __future__ import annotations
@@ -236,6 +237,15 @@ def move_torch(objects, x: torch.Tensor, delta: torch.Tensor, pose_a: torch.Tens
         cur = _push(cur, plan.active[:n], frac, S[:n] == s, uniform, motions, objects, cd, dil)
     moved = torch.cat([cur] + done[::-1]) if done else cur
     return (x + delta).index_copy(0, plan.idx, moved)
+
+
+def move_native_grad(objects, x: torch.Tensor, delta: torch.Tensor, pose_a: torch.Tensor, pose_b: torch.Tensor,
+                     plan: Plan, cd: float, dil: float) -> torch.Tensor:
+    """:func:`move_torch` as one C++ call with a C++ backward (CPU, float32/float64): the same
+    values, and the gradients w.r.t. x, delta and the poses that autograd takes through
+    :func:`move_torch`, without its thousands of small graph nodes."""
+    return fused.collide_pieces_grad(x, delta, pose_a, pose_b, objects, plan.idx, plan.active, plan.pieces, cd,
+                                     dil, pose_a is pose_b)
 
 
 def move_native(objects, x: torch.Tensor, delta: torch.Tensor, pose_a: torch.Tensor, pose_b: torch.Tensor,

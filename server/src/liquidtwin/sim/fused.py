@@ -120,6 +120,34 @@ def collide_pieces(x, delta, pose_a, pose_b, objects, idx, active, pieces, colli
                                   bool(fixed))
 
 
+class _CollidePieces(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x, delta, pose_a, pose_b, objects, idx, active, pieces, collision_distance, dilation, fixed):
+        grids, origins, cells = _grids(objects, x.dtype)
+        args = (grids, origins, cells, idx, active, pieces, float(collision_distance), float(dilation), bool(fixed))
+        out = _native.collide_pieces(x.detach().contiguous(), delta.detach(), pose_a.detach(), pose_b.detach(), *args)
+        ctx.save_for_backward(x.detach(), delta.detach(), pose_a.detach(), pose_b.detach())
+        ctx.args = args
+        return out
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, g):
+        x, delta, pose_a, pose_b = ctx.saved_tensors
+        gx, gd, ga, gb = _native.collide_pieces_backward(x, delta, pose_a, pose_b, *ctx.args, g.contiguous())
+        fixed = ctx.args[-1]
+        return (gx, gd.to(delta.dtype), None if fixed else ga.to(pose_a.dtype), gb.to(pose_b.dtype),
+                None, None, None, None, None, None, None)
+
+
+def collide_pieces_grad(x, delta, pose_a, pose_b, objects, idx, active, pieces, collision_distance, dilation,
+                        fixed):
+    """:func:`collide_pieces` as an autograd function: gradients w.r.t. x, delta and both
+    poses from one C++ backward pass (``fixed``: pose_a is pose_b, whose gradient gets it all)."""
+    return _CollidePieces.apply(x, delta, pose_a, pose_b, objects, idx, active, pieces, collision_distance,
+                                dilation, fixed)
+
+
 def collide_plan(x, delta, pose_a, objects, sweep, margin, thin, max_pieces, forced=0):
     """The collision plan of :func:`liquidtwin.sim.collide.plan_collisions` in one C++ pass:
     x, delta (N, 3) m; pose_a (M, 7); sweep, margin (M,) m; thin (M,) longest piece, m.

@@ -314,8 +314,8 @@ def collide_move(model: FluidModel, x: torch.Tensor, delta: torch.Tensor, pose_a
     pushed out of objects posed at the matching fraction of their motion. Only particles that
     could reach an object during the move (by a lower bound on their distance) take part,
     and only for the objects they can reach (:mod:`liquidtwin.sim.collide`). Differentiable
-    w.r.t. x, delta and the poses; when no gradient is needed and the C++ extension is
-    built (backend auto/fused, CPU) the pieces run natively with the same result.
+    w.r.t. x, delta and the poses; when the C++ extension is built (backend auto/fused, CPU)
+    the pieces run natively with the same result, and so does their backward pass.
     Returns (N, 3) positions, m.
     """
     if not model.objects:
@@ -329,7 +329,7 @@ def collide_move(model: FluidModel, x: torch.Tensor, delta: torch.Tensor, pose_a
     if plan is None:
         return x + delta
     grad = torch.is_grad_enabled() and any(t.requires_grad for t in (x, delta, pose_a, pose_b))
-    move = collide.move_native if native and not grad else collide.move_torch
+    move = (collide.move_native_grad if grad else collide.move_native) if native else collide.move_torch
     return move(model.objects, x, delta, pose_a, pose_b, plan, model.collision_distance, model._normal_dilation)
 
 
