@@ -149,12 +149,13 @@ struct Frame {
 template <typename T>
 struct Motion {
   T q0[4], q1[4], t0[3], t1[3], qb[4], tb[3];
+  T sign = 1;  // -1 when q1 was flipped onto q0's hemisphere (the short arc)
   void set(const T* pa, const T* pb) {
     T na = std::sqrt(pa[3] * pa[3] + pa[4] * pa[4] + pa[5] * pa[5] + pa[6] * pa[6]);
     T nb = std::sqrt(pb[3] * pb[3] + pb[4] * pb[4] + pb[5] * pb[5] + pb[6] * pb[6]);
     T dot = 0;
     for (int a = 0; a < 4; ++a) { q0[a] = pa[3 + a] / na; q1[a] = pb[3 + a] / nb; dot += q0[a] * q1[a]; }
-    T sign = dot < 0 ? T(-1) : T(1);
+    sign = dot < 0 ? T(-1) : T(1);
     for (int a = 0; a < 4; ++a) { q1[a] *= sign; qb[a] = pb[3 + a]; }
     for (int a = 0; a < 3; ++a) { t0[a] = pa[a]; t1[a] = pb[a]; tb[a] = pb[a]; }
   }
@@ -340,6 +341,38 @@ std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Ten
   return {idx_t, active_t, pieces_t, counts_t, torch::tensor(most, torch::kInt64)};
 }
 
+// The inputs of collide_pieces and its backward, checked and made contiguous in x's dtype.
+struct PieceInputs {
+  torch::Tensor x, delta, pose_a, pose_b, idx, active, pieces;
+  int64_t n, m, rows;
+};
+
+inline PieceInputs piece_inputs(torch::Tensor x, torch::Tensor delta, torch::Tensor pose_a, torch::Tensor pose_b,
+                                int64_t m, torch::Tensor idx, torch::Tensor active, torch::Tensor pieces) {
+  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.device().is_cpu(), "positions must be CPU (N, 3)");
+  TORCH_CHECK(delta.sizes() == x.sizes(), "delta must match positions");
+  PieceInputs in;
+  in.x = x.contiguous();
+  in.delta = delta.to(x.scalar_type()).contiguous();
+  in.pose_a = pose_a.to(x.scalar_type()).contiguous();
+  in.pose_b = pose_b.to(x.scalar_type()).contiguous();
+  in.idx = idx.to(torch::kInt64).contiguous();
+  in.pieces = pieces.to(torch::kInt64).contiguous();
+  in.active = active.to(torch::kUInt8).contiguous();
+  in.n = x.size(0);
+  in.m = m;
+  in.rows = in.idx.size(0);
+  TORCH_CHECK(in.pose_a.dim() == 2 && in.pose_a.size(0) == m && in.pose_a.size(1) == 7 &&
+              in.pose_b.sizes() == in.pose_a.sizes(), "poses must be (M, 7)");
+  TORCH_CHECK(in.pieces.size(0) == in.rows && in.active.dim() == 2 && in.active.size(0) == in.rows &&
+              in.active.size(1) == m, "plan tensors must be idx (R,), active (R, M), pieces (R,)");
+  const int64_t* pi = in.idx.data_ptr<int64_t>();
+  const int64_t* ps = in.pieces.data_ptr<int64_t>();
+  for (int64_t r = 0; r < in.rows; ++r)
+    TORCH_CHECK(pi[r] >= 0 && pi[r] < in.n && ps[r] >= 1, "bad collision plan (index or piece count)");
+  return in;
+}
+
 // Anti-clipped move of the planned particles. Particle idx[r] moves by delta in pieces[r]
 // equal pieces; after piece k it is pushed out of its active objects (active[r, j]) posed a
 // fraction k / pieces[r] of the way from pose_a to pose_b (pose_b itself at the last piece,
@@ -348,20 +381,10 @@ torch::Tensor collide_pieces(torch::Tensor x, torch::Tensor delta, torch::Tensor
                              std::vector<torch::Tensor> grids, torch::Tensor origins, torch::Tensor cells,
                              torch::Tensor idx, torch::Tensor active, torch::Tensor pieces,
                              double collision_distance, double dilation, bool fixed) {
-  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.device().is_cpu(), "positions must be CPU (N, 3)");
-  TORCH_CHECK(delta.sizes() == x.sizes(), "delta must match positions");
-  x = x.contiguous();
-  delta = delta.to(x.scalar_type()).contiguous();
-  pose_a = pose_a.to(x.scalar_type()).contiguous();
-  pose_b = pose_b.to(x.scalar_type()).contiguous();
-  idx = idx.to(torch::kInt64).contiguous();
-  pieces = pieces.to(torch::kInt64).contiguous();
-  active = active.to(torch::kUInt8).contiguous();
-  const int64_t n = x.size(0), m = static_cast<int64_t>(grids.size()), rows = idx.size(0);
-  TORCH_CHECK(pose_a.dim() == 2 && pose_a.size(0) == m && pose_a.size(1) == 7 && pose_b.sizes() == pose_a.sizes(),
-              "poses must be (M, 7)");
-  TORCH_CHECK(pieces.size(0) == rows && active.dim() == 2 && active.size(0) == rows && active.size(1) == m,
-              "plan tensors must be idx (R,), active (R, M), pieces (R,)");
+  const auto in = piece_inputs(x, delta, pose_a, pose_b, static_cast<int64_t>(grids.size()), idx, active, pieces);
+  const int64_t m = in.m, rows = in.rows;
+  x = in.x; delta = in.delta; pose_a = in.pose_a; pose_b = in.pose_b;
+  idx = in.idx; active = in.active; pieces = in.pieces;
   auto out = x + delta;
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "collide_pieces", [&] {
     using T = scalar_t;
@@ -376,8 +399,6 @@ torch::Tensor collide_pieces(torch::Tensor x, torch::Tensor delta, torch::Tensor
     T* po = out.data_ptr<T>();
     const T cd = static_cast<T>(collision_distance), dil = static_cast<T>(dilation);
     const T inf = std::numeric_limits<T>::infinity();
-    for (int64_t r = 0; r < rows; ++r)
-      TORCH_CHECK(pi[r] >= 0 && pi[r] < n && ps[r] >= 1, "bad collision plan (index or piece count)");
     at::parallel_for(0, rows, 16, [&](int64_t b, int64_t e) {
       std::vector<Frame<T>> fr(m);
       std::vector<int64_t> act;
@@ -467,21 +488,12 @@ std::vector<torch::Tensor> collide_pieces_backward(
     std::vector<torch::Tensor> grids, torch::Tensor origins, torch::Tensor cells, torch::Tensor idx,
     torch::Tensor active, torch::Tensor pieces, double collision_distance, double dilation, bool fixed,
     torch::Tensor grad_out) {
-  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.device().is_cpu(), "positions must be CPU (N, 3)");
-  TORCH_CHECK(delta.sizes() == x.sizes() && grad_out.sizes() == x.sizes(), "delta and grad must match positions");
-  x = x.contiguous();
-  delta = delta.to(x.scalar_type()).contiguous();
+  TORCH_CHECK(grad_out.sizes() == x.sizes(), "the gradient must match positions");
+  const auto in = piece_inputs(x, delta, pose_a, pose_b, static_cast<int64_t>(grids.size()), idx, active, pieces);
+  const int64_t m = in.m, rows = in.rows;
+  x = in.x; delta = in.delta; pose_a = in.pose_a; pose_b = in.pose_b;
+  idx = in.idx; active = in.active; pieces = in.pieces;
   grad_out = grad_out.to(x.scalar_type()).contiguous();
-  pose_a = pose_a.to(x.scalar_type()).contiguous();
-  pose_b = pose_b.to(x.scalar_type()).contiguous();
-  idx = idx.to(torch::kInt64).contiguous();
-  pieces = pieces.to(torch::kInt64).contiguous();
-  active = active.to(torch::kUInt8).contiguous();
-  const int64_t n = x.size(0), m = static_cast<int64_t>(grids.size()), rows = idx.size(0);
-  TORCH_CHECK(pose_a.dim() == 2 && pose_a.size(0) == m && pose_a.size(1) == 7 && pose_b.sizes() == pose_a.sizes(),
-              "poses must be (M, 7)");
-  TORCH_CHECK(pieces.size(0) == rows && active.dim() == 2 && active.size(0) == rows && active.size(1) == m,
-              "plan tensors must be idx (R,), active (R, M), pieces (R,)");
   auto gx = grad_out.clone();
   auto gd = grad_out.clone();
   auto gpa = torch::zeros({m, 7}, x.options());
@@ -492,17 +504,7 @@ std::vector<torch::Tensor> collide_pieces_backward(
     std::vector<Motion<T>> motion(m);
     const T* ppa = pose_a.data_ptr<T>();
     const T* ppb = pose_b.data_ptr<T>();
-    std::vector<T> sign(m, T(1));
-    for (int64_t j = 0; j < m; ++j) {
-      motion[j].set(ppa + 7 * j, ppb + 7 * j);
-      T dot = 0, na = 0, nb = 0;
-      for (int a = 0; a < 4; ++a) {
-        dot += ppa[7 * j + 3 + a] * ppb[7 * j + 3 + a];
-        na += ppa[7 * j + 3 + a] * ppa[7 * j + 3 + a];
-        nb += ppb[7 * j + 3 + a] * ppb[7 * j + 3 + a];
-      }
-      sign[j] = (dot / std::sqrt(na) / std::sqrt(nb)) < 0 ? T(-1) : T(1);
-    }
+    for (int64_t j = 0; j < m; ++j) motion[j].set(ppa + 7 * j, ppb + 7 * j);
     const T* px = x.data_ptr<T>();
     const T* pd = delta.data_ptr<T>();
     const T* pg = grad_out.data_ptr<T>();
@@ -513,8 +515,6 @@ std::vector<torch::Tensor> collide_pieces_backward(
     T* ogd = gd.data_ptr<T>();
     const T cd = static_cast<T>(collision_distance), dil = static_cast<T>(dilation);
     const T inf = std::numeric_limits<T>::infinity();
-    for (int64_t r = 0; r < rows; ++r)
-      TORCH_CHECK(pi[r] >= 0 && pi[r] < n && ps[r] >= 1, "bad collision plan (index or piece count)");
     std::vector<T> acc(static_cast<size_t>(rows * m * kPoseAcc), T(0));
     at::parallel_for(0, rows, 16, [&](int64_t b, int64_t e) {
       std::vector<Frame<T>> fr(m);
@@ -680,7 +680,7 @@ std::vector<torch::Tensor> collide_pieces_backward(
       const T* qa = ppa + 7 * j + 3;
       const T* qb = ppb + 7 * j + 3;
       T g0[4], g1[4], ge[4];
-      for (int a = 0; a < 4; ++a) { g0[a] = sum[6 + a]; g1[a] = sum[10 + a] * sign[j]; ge[a] = sum[14 + a]; }
+      for (int a = 0; a < 4; ++a) { g0[a] = sum[6 + a]; g1[a] = sum[10 + a] * motion[j].sign; ge[a] = sum[14 + a]; }
       normalize_backward(qa, g0);
       normalize_backward(qb, g1);
       normalize_backward(qb, ge);
