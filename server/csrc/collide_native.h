@@ -29,6 +29,23 @@ struct Grid {
 
   T node(int64_t i, int64_t j, int64_t k) const { return v[(i * n[1] + j) * n[2] + k]; }
 
+  // The trilinear cell of continuous node index ix (3,): its lower corner, the weights
+  // a = 1 − frac and b = frac per axis, and whether the upper corners lie inside the grid.
+  struct Cell {
+    int64_t x0, y0, z0;
+    T ax, bx, ay, by, az, bz;
+    bool xin, yin, zin;
+    Cell(const T ix[3], const int64_t n[3]) {
+      x0 = static_cast<int64_t>(std::floor(ix[0]));
+      y0 = static_cast<int64_t>(std::floor(ix[1]));
+      z0 = static_cast<int64_t>(std::floor(ix[2]));
+      ax = static_cast<T>(x0 + 1) - ix[0]; bx = ix[0] - static_cast<T>(x0);
+      ay = static_cast<T>(y0 + 1) - ix[1]; by = ix[1] - static_cast<T>(y0);
+      az = static_cast<T>(z0 + 1) - ix[2]; bz = ix[2] - static_cast<T>(z0);
+      xin = x0 + 1 < n[0]; yin = y0 + 1 < n[1]; zin = z0 + 1 < n[2];
+    }
+  };
+
   // Trilinear value at the clamped point and the distance from the point to the grid box.
   void sample(const T p[3], T& val, T& outside) const {
     T ix[3];
@@ -44,14 +61,10 @@ struct Grid {
     }
     outside = std::sqrt(out2);
     // grid_sample's 3-D trilinear: corners in its order, each weighted by the opposite volume.
-    const int64_t x0 = static_cast<int64_t>(std::floor(ix[0]));
-    const int64_t y0 = static_cast<int64_t>(std::floor(ix[1]));
-    const int64_t z0 = static_cast<int64_t>(std::floor(ix[2]));
-    const int64_t x1 = x0 + 1, y1 = y0 + 1, z1 = z0 + 1;
-    const T ax = static_cast<T>(x1) - ix[0], bx = ix[0] - static_cast<T>(x0);
-    const T ay = static_cast<T>(y1) - ix[1], by = ix[1] - static_cast<T>(y0);
-    const T az = static_cast<T>(z1) - ix[2], bz = ix[2] - static_cast<T>(z0);
-    const bool xin = x1 < n[0], yin = y1 < n[1], zin = z1 < n[2];
+    const Cell cl(ix, n);
+    const int64_t x0 = cl.x0, y0 = cl.y0, z0 = cl.z0, x1 = x0 + 1, y1 = y0 + 1, z1 = z0 + 1;
+    const T ax = cl.ax, bx = cl.bx, ay = cl.ay, by = cl.by, az = cl.az, bz = cl.bz;
+    const bool xin = cl.xin, yin = cl.yin, zin = cl.zin;
     T r = 0;
     r += node(x0, y0, z0) * (ax * ay * az);
     if (xin) r += node(x1, y0, z0) * (bx * ay * az);
@@ -87,14 +100,10 @@ struct Grid {
       dix[a] = dc * (static_cast<T>(n[a] - 1) / T(2)) * (T(2) / extent[a]) * duc / cell;
     }
     const T outside = std::sqrt(out2);
-    const int64_t x0 = static_cast<int64_t>(std::floor(ix[0]));
-    const int64_t y0 = static_cast<int64_t>(std::floor(ix[1]));
-    const int64_t z0 = static_cast<int64_t>(std::floor(ix[2]));
-    const int64_t x1 = x0 + 1, y1 = y0 + 1, z1 = z0 + 1;
-    const T ax = static_cast<T>(x1) - ix[0], bx = ix[0] - static_cast<T>(x0);
-    const T ay = static_cast<T>(y1) - ix[1], by = ix[1] - static_cast<T>(y0);
-    const T az = static_cast<T>(z1) - ix[2], bz = ix[2] - static_cast<T>(z0);
-    const bool xin = x1 < n[0], yin = y1 < n[1], zin = z1 < n[2];
+    const Cell cl(ix, n);
+    const int64_t x0 = cl.x0, y0 = cl.y0, z0 = cl.z0, x1 = x0 + 1, y1 = y0 + 1, z1 = z0 + 1;
+    const T ax = cl.ax, bx = cl.bx, ay = cl.ay, by = cl.by, az = cl.az, bz = cl.bz;
+    const bool xin = cl.xin, yin = cl.yin, zin = cl.zin;
     // Corner values (0 where grid_sample's corner falls outside the grid).
     const T v000 = node(x0, y0, z0);
     const T v100 = xin ? node(x1, y0, z0) : T(0);
