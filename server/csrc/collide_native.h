@@ -1,5 +1,6 @@
-// Forward-only particle–object collisions (ConvSDF push-out with anti-clipping pieces) for
-// liquidtwin/sim/collide.py. Included by pbf_native.cpp, which registers the functions.
+// Particle–object collisions (ConvSDF push-out with anti-clipping pieces) for
+// liquidtwin/sim/collide.py, forward and backward. Included by pbf_native.cpp, which
+// registers the functions.
 //
 // The arithmetic mirrors the torch path operation by operation so both agree to rounding:
 // SDFGrid.sample_local (clamp to the grid box, grid_sample trilinear with align_corners and
@@ -350,6 +351,86 @@ std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Ten
   return {idx_t, active_t, pieces_t, counts_t, torch::tensor(most, torch::kInt64)};
 }
 
+// What one piece of a planned particle's move did: the position after the piece's add, the
+// centre value and its nearest object, and, when it pushed (pen), the stencil's nearest
+// objects and the unnormalised normal g (hi − lo per axis).
+template <typename T>
+struct PieceRecord {
+  T p1[3], centre, g[3];
+  int64_t jc, jl[3], jh[3];
+  bool pen;
+};
+
+// One planned particle's anti-clipped move, shared by collide_pieces and its backward's
+// replay so both follow the same path: S pieces of d, each followed by the push-out
+// p += ReLU(c − SDF(p)) n̂ against the particle's active objects posed for that piece.
+template <typename T>
+struct Mover {
+  const std::vector<Grid<T>>& gs;
+  const std::vector<Motion<T>>& motion;
+  const bool fixed;
+  const T cd, dil;
+  std::vector<Frame<T>> fr;
+  std::vector<int64_t> act;
+
+  Mover(const std::vector<Grid<T>>& g, const std::vector<Motion<T>>& mo, bool fx, T c, T d)
+      : gs(g), motion(mo), fixed(fx), cd(c), dil(d), fr(mo.size()) {}
+
+  // The objects of plan row `row` (active[r], M flags).
+  void activate(const uint8_t* row) {
+    act.clear();
+    for (int64_t j = 0; j < static_cast<int64_t>(motion.size()); ++j) if (row[j]) act.push_back(j);
+  }
+
+  // Frames of the active objects at piece k of S (the end pose throughout when fixed).
+  void frames(int64_t k, int64_t S) {
+    for (int64_t j : act) {
+      if (fixed) motion[j].frame(T(1), true, fr[j]);
+      else motion[j].frame(static_cast<T>(static_cast<double>(k) / static_cast<double>(S)), k == S, fr[j]);
+    }
+  }
+
+  // min over the active objects of the SDF at p, the nearest object in `arg` (the first on
+  // ties, as std::min; -1 and +inf with no object).
+  T nearest(const T p[3], int64_t& arg) const {
+    T best = std::numeric_limits<T>::infinity();
+    arg = -1;
+    for (int64_t j : act) {
+      T loc[3];
+      fr[j].local(p, loc);
+      const T v = gs[j].value(loc);
+      if (arg < 0 || v < best) { best = v; arg = j; }
+    }
+    return best;
+  }
+
+  // Moves p (3,) by S pieces of d (3,); rec: S records to fill, or nullptr.
+  void run(T p[3], const T d[3], int64_t S, PieceRecord<T>* rec) {
+    if (fixed) frames(S, S);
+    PieceRecord<T> scratch;
+    for (int64_t k = 1; k <= S; ++k) {
+      PieceRecord<T>& pc = rec ? rec[k - 1] : scratch;
+      for (int a = 0; a < 3; ++a) { p[a] = p[a] + d[a]; pc.p1[a] = p[a]; }
+      if (!fixed) frames(k, S);
+      pc.centre = nearest(p, pc.jc);
+      pc.pen = pc.centre < cd;
+      if (!pc.pen) continue;  // depth ReLU(c - SDF) = 0: no push
+      for (int a = 0; a < 3; ++a) {
+        T q[3] = {p[0], p[1], p[2]};
+        q[a] = p[a] + -dil;
+        const T lo = nearest(q, pc.jl[a]);
+        q[a] = p[a] + dil;
+        const T hi = nearest(q, pc.jh[a]);
+        pc.g[a] = hi - lo;
+      }
+      const T len = std::max(std::sqrt(pc.g[0] * pc.g[0] + pc.g[1] * pc.g[1] + pc.g[2] * pc.g[2]),
+                             static_cast<T>(1e-12));
+      const T depth = cd - pc.centre;
+      for (int a = 0; a < 3; ++a) p[a] = p[a] + depth * (pc.g[a] / len);
+    }
+  }
+};
+
 // The inputs of collide_pieces and its backward, checked and made contiguous in x's dtype.
 struct PieceInputs {
   torch::Tensor x, delta, pose_a, pose_b, idx, active, pieces;
@@ -407,48 +488,14 @@ torch::Tensor collide_pieces(torch::Tensor x, torch::Tensor delta, torch::Tensor
     const uint8_t* pa = active.data_ptr<uint8_t>();
     T* po = out.data_ptr<T>();
     const T cd = static_cast<T>(collision_distance), dil = static_cast<T>(dilation);
-    const T inf = std::numeric_limits<T>::infinity();
     at::parallel_for(0, rows, 16, [&](int64_t b, int64_t e) {
-      std::vector<Frame<T>> fr(m);
-      std::vector<int64_t> act;
+      Mover<T> mover(gs, motion, fixed, cd, dil);
       for (int64_t r = b; r < e; ++r) {
         const int64_t i = pi[r], S = ps[r];
-        act.clear();
-        for (int64_t j = 0; j < m; ++j) if (pa[r * m + j]) act.push_back(j);
+        mover.activate(pa + r * m);
         T p[3], d[3];
         for (int a = 0; a < 3; ++a) { p[a] = px[3 * i + a]; d[a] = pd[3 * i + a] / static_cast<T>(S); }
-        if (fixed) for (int64_t j : act) motion[j].frame(T(1), true, fr[j]);
-        for (int64_t k = 1; k <= S; ++k) {
-          for (int a = 0; a < 3; ++a) p[a] = p[a] + d[a];
-          if (!fixed) {
-            const T f = static_cast<T>(static_cast<double>(k) / static_cast<double>(S));
-            for (int64_t j : act) motion[j].frame(f, k == S, fr[j]);
-          }
-          T centre = inf;
-          for (int64_t j : act) {
-            T loc[3];
-            fr[j].local(p, loc);
-            centre = std::min(centre, gs[j].value(loc));
-          }
-          if (!(centre < cd)) continue;  // depth ReLU(c - SDF) = 0: no push
-          T g[3];
-          for (int a = 0; a < 3; ++a) {
-            T lo = inf, hi = inf;
-            for (int64_t j : act) {
-              T q[3] = {p[0], p[1], p[2]}, loc[3];
-              q[a] = p[a] + -dil;
-              fr[j].local(q, loc);
-              lo = std::min(lo, gs[j].value(loc));
-              q[a] = p[a] + dil;
-              fr[j].local(q, loc);
-              hi = std::min(hi, gs[j].value(loc));
-            }
-            g[a] = hi - lo;
-          }
-          T len = std::max(std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]), static_cast<T>(1e-12));
-          const T depth = cd - centre;
-          for (int a = 0; a < 3; ++a) p[a] = p[a] + depth * (g[a] / len);
-        }
+        mover.run(p, d, S, nullptr);
         for (int a = 0; a < 3; ++a) po[3 * i + a] = p[a];
       }
     });
@@ -523,39 +570,13 @@ std::vector<torch::Tensor> collide_pieces_backward(
     T* ogx = gx.data_ptr<T>();
     T* ogd = gd.data_ptr<T>();
     const T cd = static_cast<T>(collision_distance), dil = static_cast<T>(dilation);
-    const T inf = std::numeric_limits<T>::infinity();
     std::vector<T> acc(static_cast<size_t>(rows * m * kPoseAcc), T(0));
     at::parallel_for(0, rows, 16, [&](int64_t b, int64_t e) {
-      std::vector<Frame<T>> fr(m);
-      std::vector<int64_t> act;
-      std::vector<T> after_add;
-      struct Piece {  // a piece's push: centre value, nearest objects, unnormalised normal
-        T centre, g[3];
-        int64_t jc, jl[3], jh[3];
-        bool pen;
-      };
-      std::vector<Piece> rec;
+      Mover<T> mover(gs, motion, fixed, cd, dil);
+      const std::vector<Frame<T>>& fr = mover.fr;
+      std::vector<PieceRecord<T>> rec;
       std::vector<T> Rb(m * 9), tb(m * 3);
       std::vector<uint8_t> used(m);
-      // Frames of the active objects at piece k of S.
-      auto frames = [&](int64_t k, int64_t S) {
-        for (int64_t j : act) {
-          if (fixed) motion[j].frame(T(1), true, fr[j]);
-          else motion[j].frame(static_cast<T>(static_cast<double>(k) / static_cast<double>(S)), k == S, fr[j]);
-        }
-      };
-      // min over the active objects of the SDF at p; the nearest object in `arg`.
-      auto nearest = [&](const T p[3], int64_t& arg) {
-        T best = inf;
-        arg = -1;
-        for (int64_t j : act) {
-          T loc[3];
-          fr[j].local(p, loc);
-          const T v = gs[j].value(loc);
-          if (arg < 0 || v < best) { best = v; arg = j; }  // the first on ties, as std::min
-        }
-        return best;
-      };
       // Adjoint of value w at point p of object j: p̄ += R gL w, and R̄, t̄ of object j.
       auto pull = [&](int64_t j, const T p[3], T w, T pbar[3]) {
         if (j < 0 || w == T(0)) return;
@@ -574,43 +595,21 @@ std::vector<torch::Tensor> collide_pieces_backward(
       };
       for (int64_t r = b; r < e; ++r) {
         const int64_t i = pi[r], S = ps[r];
-        act.clear();
-        for (int64_t j = 0; j < m; ++j) if (pa[r * m + j]) act.push_back(j);
+        mover.activate(pa + r * m);
         T p[3], d[3];
         for (int a = 0; a < 3; ++a) { p[a] = px[3 * i + a]; d[a] = pd[3 * i + a] / static_cast<T>(S); }
-        after_add.assign(static_cast<size_t>(3 * S), T(0));
         rec.resize(static_cast<size_t>(S));
-        // Forward replay (as collide_pieces), keeping what the reverse needs of each piece.
-        for (int64_t k = 1; k <= S; ++k) {
-          Piece& pc = rec[k - 1];
-          for (int a = 0; a < 3; ++a) { p[a] = p[a] + d[a]; after_add[3 * (k - 1) + a] = p[a]; }
-          frames(k, S);
-          pc.centre = nearest(p, pc.jc);
-          pc.pen = pc.centre < cd;
-          if (!pc.pen) continue;
-          for (int a = 0; a < 3; ++a) {
-            T q[3] = {p[0], p[1], p[2]};
-            q[a] = p[a] + -dil;
-            const T lo = nearest(q, pc.jl[a]);
-            q[a] = p[a] + dil;
-            const T hi = nearest(q, pc.jh[a]);
-            pc.g[a] = hi - lo;
-          }
-          T len = std::max(std::sqrt(pc.g[0] * pc.g[0] + pc.g[1] * pc.g[1] + pc.g[2] * pc.g[2]),
-                           static_cast<T>(1e-12));
-          const T depth = cd - pc.centre;
-          for (int a = 0; a < 3; ++a) p[a] = p[a] + depth * (pc.g[a] / len);
-        }
+        mover.run(p, d, S, rec.data());   // the forward's path, recorded
         // Reverse.
         T P[3] = {pg[3 * i], pg[3 * i + 1], pg[3 * i + 2]};
         T dbar[3] = {0, 0, 0};
         T* rowacc = acc.data() + static_cast<size_t>(r * m * kPoseAcc);
         for (int64_t k = S; k >= 1; --k) {
-          const T* p1 = after_add.data() + 3 * (k - 1);
-          const Piece& pc = rec[k - 1];
+          const PieceRecord<T>& pc = rec[k - 1];
+          const T* p1 = pc.p1;
           T pbar[3] = {P[0], P[1], P[2]};
           if (pc.pen) {
-            frames(k, S);
+            mover.frames(k, S);
             std::fill(Rb.begin(), Rb.end(), T(0));
             std::fill(tb.begin(), tb.end(), T(0));
             std::fill(used.begin(), used.end(), 0);
@@ -646,7 +645,7 @@ std::vector<torch::Tensor> collide_pieces_backward(
             // Frame adjoints → pose adjoints of this row.
             const bool last = fixed || k == S;
             const T f = static_cast<T>(static_cast<double>(k) / static_cast<double>(S));
-            for (int64_t j : act) {
+            for (int64_t j : mover.act) {
               if (!used[j]) continue;
               T* A = rowacc + j * kPoseAcc;  // t0 0..2, t1 3..5, q0 6..9, q1 10..13, qend 14..17
               const Motion<T>& mo = motion[j];

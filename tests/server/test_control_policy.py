@@ -1,8 +1,8 @@
 """The catching policy learned through SPNets (control.policy, thesis §8.3.4): the network's
 layout, an observation that moves with the catcher, the rollout gradient against finite
-differences, policy files (weights_only, bad files refused), and the shipped policy catching
-one of its training pours (a smaller fill than it was trained on) better than a catcher
-that stays put. (It does not catch the mirrored pours: docs/sysid_control.md.)"""
+differences, policy files (weights_only, bad files refused), the mirror-odd network, and the
+shipped policy catching one of its training pours and its mirror image, never trained on (a
+smaller fill than it was trained on), better than a catcher that stays put."""
 
 import numpy as np
 import pytest

@@ -123,19 +123,18 @@ def collide_pieces(x, delta, pose_a, pose_b, objects, idx, active, pieces, colli
 class _CollidePieces(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x, delta, pose_a, pose_b, objects, idx, active, pieces, collision_distance, dilation, fixed):
-        grids, origins, cells = _grids(objects, x.dtype)
-        args = (grids, origins, cells, idx, active, pieces, float(collision_distance), float(dilation), bool(fixed))
-        out = _native.collide_pieces(x.detach().contiguous(), delta.detach(), pose_a.detach(), pose_b.detach(), *args)
         ctx.save_for_backward(x.detach(), delta.detach(), pose_a.detach(), pose_b.detach())
-        ctx.args = args
-        return out
+        ctx.objects, ctx.plan = objects, (idx, active, pieces, float(collision_distance), float(dilation), bool(fixed))
+        return collide_pieces(x, delta, pose_a, pose_b, objects, *ctx.plan)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, g):
         x, delta, pose_a, pose_b = ctx.saved_tensors
-        gx, gd, ga, gb = _native.collide_pieces_backward(x, delta, pose_a, pose_b, *ctx.args, g.contiguous())
-        fixed = ctx.args[-1]
+        grids, origins, cells = _grids(ctx.objects, x.dtype)
+        gx, gd, ga, gb = _native.collide_pieces_backward(x.contiguous(), delta, pose_a, pose_b, grids, origins, cells,
+                                                         *ctx.plan, g.contiguous())
+        fixed = ctx.plan[-1]
         return (gx, gd.to(delta.dtype), None if fixed else ga.to(pose_a.dtype), gb.to(pose_b.dtype),
                 None, None, None, None, None, None, None)
 
