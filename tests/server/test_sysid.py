@@ -39,7 +39,12 @@ def test_parameter_gradients_match_finite_differences(seq, loss):
     views = Views(seq)
     g = torch.autograd.grad(_loss(seq, cfg, starts, lc, lv, views=views), [lc, lv])
     with torch.no_grad():
-        for i, (c0, v0, eps) in enumerate([(0.07, 40.0, (0.004, 0.0)), (0.07, 40.0, (0.0, 4.0))]):
+        # Projection: λ_c only. λ_v's slope there is ~1e-9 per unit, and a step-like change of
+        # the loss of ~4e-9 between λ_v 39 and 41 (there in float64 too, and with the
+        # visibility masks held) makes its central differences range from -0.4e-9 to -4e-9
+        # as the step shrinks; the sign test below covers λ_v's projection gradient.
+        probes = [(0.07, 40.0, (0.004, 0.0)), (0.07, 40.0, (0.0, 4.0))][: 2 if loss == "l1" else 1]
+        for i, (c0, v0, eps) in enumerate(probes):
             up = float(_loss(seq, cfg, starts, c0 + eps[0], v0 + eps[1], views=views))
             dn = float(_loss(seq, cfg, starts, c0 - eps[0], v0 - eps[1], views=views))
             fd = (up - dn) / (2 * (eps[0] + eps[1]))
@@ -68,7 +73,18 @@ def test_the_loss_is_zero_at_the_truth_and_grows_away_from_it(seq):
         cfg = FitConfig(loss=loss)
         at = float(_loss(seq, cfg, [100, 200], 0.1, 60.0))
         off = float(_loss(seq, cfg, [100, 200], 0.15, 90.0))
-        assert at < 1e-3 * off if loss == "l1" else at < 0.05 * off, (loss, at, off)
+        assert at < 1e-3 * off if loss == "l1" else at < 1e-2 * off, (loss, at, off)
+
+
+def test_the_projection_gradient_in_viscosity_points_to_the_truth_from_both_sides(seq):
+    # The prediction is drawn with its own visibility: when it was drawn with the start
+    # state's, particles crossing an occluding edge left a loss floor whose gradient pulled
+    # λ_v fits away from a true 30 (3 of the 9 ladle cases missed).
+    cfg = FitConfig(loss="projection")
+    for lv, sign in ((30.0, -1.0), (90.0, 1.0)):
+        v = torch.tensor(lv, dtype=torch.float64, requires_grad=True)
+        g, = torch.autograd.grad(_loss(seq, cfg, [150, 200, 240, 280], 0.1, v), [v])
+        assert sign * float(g) > 0, (lv, float(g))
 
 
 def test_a_short_fit_recovers_cohesion(seq):
