@@ -699,4 +699,87 @@ std::vector<torch::Tensor> collide_pieces_backward(
   return {gx, gd, gpa, gpb};
 }
 
+// Occlusion test of liquidtwin/camera/occlusion.py (segment_blocked), same marching rule: does
+// the segment start_i -> end_i pass deeper than `tol` into any object? Samples at arc lengths
+// s_{k+1} = s_k + max(f(s_k), step), f the lower bound on the distance to the nearest object
+// (the trilinear SDF inside a grid box; max(d_box, sdf - d_box) outside it); a ray stops when
+// blocked, past its end, or when its rest meets no object's grid box (slab test).
+torch::Tensor segment_blocked(torch::Tensor start, torch::Tensor end, torch::Tensor poses,
+                              std::vector<torch::Tensor> grids, torch::Tensor origins, torch::Tensor cells,
+                              double tol, double step) {
+  TORCH_CHECK(start.dim() == 2 && start.size(1) == 3 && start.device().is_cpu(), "segment starts must be CPU (N, 3)");
+  TORCH_CHECK(end.sizes() == start.sizes(), "segment ends must match the starts");
+  TORCH_CHECK(step > 0 && tol >= 0, "need step > 0 and tol >= 0");
+  start = start.contiguous();
+  end = end.to(start.scalar_type()).contiguous();
+  poses = poses.to(start.scalar_type()).contiguous();
+  const int64_t n = start.size(0), m = static_cast<int64_t>(grids.size());
+  TORCH_CHECK(poses.dim() == 2 && poses.size(0) == m && poses.size(1) == 7, "poses must be (M, 7)");
+  auto out = torch::zeros({n}, start.options().dtype(torch::kBool));
+  if (n == 0 || m == 0) return out;
+  AT_DISPATCH_FLOATING_TYPES(start.scalar_type(), "segment_blocked", [&] {
+    using T = scalar_t;
+    auto gs = make_grids<T>(grids, origins, cells);
+    const T* pp = poses.data_ptr<T>();
+    std::vector<Frame<T>> frames(m);
+    for (int64_t j = 0; j < m; ++j) frames[j].set(pp + 7 * j + 3, pp + 7 * j);
+    const T* ps = start.data_ptr<T>();
+    const T* pe = end.data_ptr<T>();
+    bool* o = out.data_ptr<bool>();
+    const T st = static_cast<T>(step), tl = static_cast<T>(tol);
+    // the Python loop's round limit: ceil(longest segment / step) + 2
+    double longest = 0;
+    for (int64_t i = 0; i < n; ++i) {
+      double l2 = 0;
+      for (int a = 0; a < 3; ++a) { double d = static_cast<double>(pe[3 * i + a] - ps[3 * i + a]); l2 += d * d; }
+      longest = std::max(longest, static_cast<double>(static_cast<T>(std::sqrt(l2))));
+    }
+    const int64_t rounds = static_cast<int64_t>(std::ceil(longest / step)) + 2;
+    at::parallel_for(0, n, 64, [&](int64_t b, int64_t e) {
+      for (int64_t i = b; i < e; ++i) {
+        T q0[3], d[3], len2 = 0;
+        for (int a = 0; a < 3; ++a) { q0[a] = ps[3 * i + a]; d[a] = pe[3 * i + a] - q0[a]; len2 += d[a] * d[a]; }
+        const T len = std::sqrt(len2);
+        const T inv_len = T(1) / std::max(len, T(1e-30));
+        for (int a = 0; a < 3; ++a) d[a] *= inv_len;
+        T s = 0;
+        for (int64_t r = 0; r < rounds; ++r) {
+          T q[3] = {q0[0] + s * d[0], q0[1] + s * d[1], q0[2] + s * d[2]};
+          T f = std::numeric_limits<T>::infinity();
+          for (int64_t j = 0; j < m; ++j) {
+            T loc[3], val, outside;
+            frames[j].local(q, loc);
+            gs[j].sample(loc, val, outside);
+            f = std::min(f, outside > 0 ? std::max(outside, val - outside) : val);
+          }
+          if (f < -tl) { o[i] = true; break; }
+          s += std::max(f, st);
+          if (!(s < len)) break;
+          // does the rest of the segment meet any object's grid box?
+          const T rest = std::max(len - s, T(0));
+          for (int a = 0; a < 3; ++a) q[a] = q0[a] + s * d[a];
+          bool meets = false;
+          for (int64_t j = 0; j < m && !meets; ++j) {
+            T p[3], u[3];
+            frames[j].local(q, p);
+            const auto& R = frames[j].R;
+            for (int a = 0; a < 3; ++a) u[a] = d[0] * R[a] + d[1] * R[3 + a] + d[2] * R[6 + a];
+            T enter = 0, leave = rest;
+            for (int a = 0; a < 3; ++a) {
+              const T lo = gs[j].origin[a], hi = lo + gs[j].extent[a] * gs[j].cell;
+              const T inv = T(1) / (std::abs(u[a]) < T(1e-12) ? T(1e-12) : u[a]);
+              const T ta = (lo - p[a]) * inv, tb = (hi - p[a]) * inv;
+              enter = std::max(enter, std::min(ta, tb));
+              leave = std::min(leave, std::max(ta, tb));
+            }
+            meets = enter <= leave;
+          }
+          if (!meets) break;
+        }
+      }
+    });
+  });
+  return out;
+}
+
 }  // namespace collide

@@ -15,7 +15,7 @@ from liquidtwin.camera import (Camera, coverage, disc_stencil, in_view, iou, mod
 from liquidtwin.camera import render as _render
 from liquidtwin.camera.pinhole import matrix_to_quat
 from liquidtwin.scenes import shapes
-from liquidtwin.sim import quat_to_matrix
+from liquidtwin.sim import fused, quat_to_matrix
 
 IDENTITY = torch.tensor([[0.0, 0, 0, 0, 0, 0, 1]])
 
@@ -219,8 +219,9 @@ SHAPES = {"cup": (shapes.cup, shapes.cup_grid, CUP),
           "bowl": (shapes.bowl, shapes.bowl_grid, dict(radius=0.08, wall=0.003))}
 
 
+@pytest.mark.parametrize("backend", ["auto", "torch"])
 @pytest.mark.parametrize("shape", ["cup", "bowl"])
-def test_occlusion_matches_brute_force_sampling(shape):
+def test_occlusion_matches_brute_force_sampling(shape, backend):
     """Random particles (inside and well outside the SDF grid box) and camera positions around a
     tilted, shifted container; the reference samples the analytic SDF every ≤ 0.1 mm along each
     segment. (The bowl's grid box has corners far from the bowl, where a plain grid lookup
@@ -239,7 +240,7 @@ def test_occlusion_matches_brute_force_sampling(shape):
     cams = 0.4 * cams / np.linalg.norm(cams, axis=1, keepdims=True) + pose[:3]
     f32 = dict(dtype=torch.float32)
     got = segment_blocked(torch.as_tensor(x, **f32), torch.as_tensor(cams, **f32), [grid(**kw)],
-                          torch.as_tensor(pose, **f32)[None]).numpy()
+                          torch.as_tensor(pose, **f32)[None], backend=backend).numpy()
     s = np.linspace(0, 1, 6001)[None, :, None]
     deepest = np.concatenate([
         fn((x[i:i + 50, None] + s * (cams - x)[i:i + 50, None] - pose[:3]) @ R, **kw).min(1)
@@ -249,6 +250,32 @@ def test_occlusion_matches_brute_force_sampling(shape):
     assert got[sure_hit].all() and not got[sure_clear].any()
     # the uncertain band (segments that only clip a rim or brush a surface) is small
     assert (~sure_hit & ~sure_clear).mean() < 0.05
+
+
+@pytest.mark.skipif(not fused.available(), reason="C++ extension not built")
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_occlusion_march_equals_the_torch_march(dtype):
+    """The C++ march (one ray per thread) takes the same samples as the torch loop (rounds of
+    batched ops): a cup and a bowl, tilted and shifted, rays from particles in, around and
+    far from them to cameras all around."""
+    objects = [shapes.cup_grid(**CUP), shapes.bowl_grid(radius=0.08, wall=0.003)]
+    q = torch.tensor([math.sin(0.15), 0.0, math.sin(0.1), 1.0], dtype=torch.float64)
+    poses = torch.stack([torch.cat([torch.tensor([0.02, 0.01, -0.03], dtype=torch.float64), q / q.norm()]),
+                         torch.tensor([0.0, -0.05, 0.12, 0.0, 0.0, 0.0, 1.0], dtype=torch.float64)]).to(dtype)
+    g = torch.Generator().manual_seed(11)
+    x = (torch.rand(3000, 3, generator=g, dtype=torch.float64) * torch.tensor([0.3, 0.25, 0.4])
+         - torch.tensor([0.15, 0.08, 0.12])).to(dtype)
+    cams = torch.randn(3000, 3, generator=g, dtype=torch.float64)
+    cams = (0.5 * cams / cams.norm(dim=1, keepdim=True)).to(dtype)
+    native = segment_blocked(x, cams, objects, poses)
+    ref = segment_blocked(x, cams, objects, poses, backend="torch")
+    assert 300 < int(ref.sum()) < 2700
+    assert torch.equal(native, ref), int((native != ref).sum())
+    one_camera = torch.tensor([0.1, 0.3, 0.4], dtype=dtype)
+    assert torch.equal(segment_blocked(x, one_camera, objects, poses),
+                       segment_blocked(x, one_camera, objects, poses, backend="torch"))
+    with pytest.raises(ValueError, match="backend"):
+        segment_blocked(x, one_camera, objects, poses, backend="cuda")
 
 
 def test_visible_front_and_image_bounds():

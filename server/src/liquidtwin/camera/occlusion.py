@@ -32,6 +32,7 @@ import math
 
 import torch
 
+from ..sim import fused
 from ..sim.sdf import SDFGrid, check_poses, quat_to_matrix
 from .pinhole import Camera, _check_points
 
@@ -79,7 +80,8 @@ def _default_step(objects) -> float:
 
 
 def segment_blocked(start: torch.Tensor, end: torch.Tensor, objects, poses: torch.Tensor,
-                    tolerance: float | None = None, min_step: float | None = None) -> torch.Tensor:
+                    tolerance: float | None = None, min_step: float | None = None, *,
+                    backend: str = "auto") -> torch.Tensor:
     """Does the segment start[i] → end[i] pass through object material? (rule: module doc)
 
     Args:
@@ -89,9 +91,14 @@ def segment_blocked(start: torch.Tensor, end: torch.Tensor, objects, poses: torc
       tolerance: depth inside material that counts as a hit, m (default: thinnest wall / 4).
       min_step: smallest march step, m (default: thinnest wall / 4). Keep
         ``2·tolerance + min_step ≤ wall`` for the no-skip guarantee.
+      backend: "auto" marches every ray in one C++/OpenMP call when the extension is built
+        and the points are on the CPU (the same rule, one ray per thread instead of rounds
+        of batched torch ops); "torch" always uses the torch loop, the reference.
     Returns:
       (N,) bool, True where blocked.
     """
+    if backend not in ("auto", "torch"):
+        raise ValueError(f"backend must be 'auto' or 'torch', got {backend!r}")
     start = _check_points(start, "segment starts")
     end = torch.as_tensor(end, dtype=start.dtype, device=start.device)
     if end.shape == (3,):
@@ -112,6 +119,8 @@ def segment_blocked(start: torch.Tensor, end: torch.Tensor, objects, poses: torc
     step = _default_step(objects) if min_step is None else float(min_step)
     if not (math.isfinite(tol) and tol >= 0 and math.isfinite(step) and step > 0):
         raise ValueError(f"need tolerance >= 0 and min_step > 0 (m), got {tolerance}, {min_step}")
+    if backend == "auto" and fused.available(start.device):
+        return fused.segment_blocked(start, end, poses, objects, tol, step)
     with torch.no_grad():
         poses = poses.detach().to(device=start.device, dtype=start.dtype)
         frames = _frames(objects, poses)
@@ -150,7 +159,7 @@ def in_view(camera: Camera, x: torch.Tensor, margin_px: float = 0.0,
 
 def visible(camera: Camera, x: torch.Tensor, objects=(), poses: torch.Tensor | None = None, *,
             margin_px: float = 0.0, near: float = 0.0, tolerance: float | None = None,
-            min_step: float | None = None) -> torch.Tensor:
+            min_step: float | None = None, backend: str = "auto") -> torch.Tensor:
     """Which particles the camera sees (SPEC §2).
 
     Args:
@@ -161,7 +170,7 @@ def visible(camera: Camera, x: torch.Tensor, objects=(), poses: torch.Tensor | N
       margin_px: also count particles projecting up to this many px outside the image
         (e.g. the disc radius, so discs straddling the border are drawn).
       near: minimum depth in front of the camera, m.
-      tolerance, min_step: sphere-tracing parameters, see :func:`segment_blocked`.
+      tolerance, min_step, backend: sphere-tracing parameters, see :func:`segment_blocked`.
     Returns:
       (N,) bool on x's device: in front, inside the image and not occluded. Not
       differentiable (a selection).
@@ -176,6 +185,6 @@ def visible(camera: Camera, x: torch.Tensor, objects=(), poses: torch.Tensor | N
     if objects and bool(seen.any()):
         idx = seen.nonzero().squeeze(1)
         cam = camera.position.detach().to(device=x.device, dtype=x.dtype)
-        hidden = segment_blocked(x.detach()[idx], cam, objects, poses, tolerance, min_step)
+        hidden = segment_blocked(x.detach()[idx], cam, objects, poses, tolerance, min_step, backend=backend)
         seen[idx[hidden]] = False
     return seen

@@ -103,6 +103,15 @@ def _grids(objects, dtype):
     return grids, origins, cells
 
 
+def segment_blocked(start, end, poses, objects, tolerance: float, min_step: float):
+    """:func:`liquidtwin.camera.occlusion.segment_blocked` in one C++ call, one ray per thread:
+    start, end (N, 3) m; objects at poses (M, 7) → (N,) bool (no gradient)."""
+    grids, origins, cells = _grids(objects, start.dtype)
+    return _native.segment_blocked(start.detach().contiguous(), end.detach().to(start.dtype).contiguous(),
+                                   poses.detach().to(start.dtype), grids, origins, cells, float(tolerance),
+                                   float(min_step))
+
+
 def sdf_lower_bounds(x, poses, objects):
     """(N, M) lower bounds on every object's SDF at points x (N, 3) m, objects at poses (M, 7)
     — :meth:`SDFGrid.lower_bound_local` in one C++ pass (no gradient)."""
