@@ -24,6 +24,8 @@ The segment test is batched sphere tracing over the objects' signed distance gri
 
 Every sample advances by at least ``min_step``, so the loop ends after at most
 distance/min_step rounds; rays leave the loop as they finish (hit or reach the camera).
+On the CPU with the C++ extension built, the same march runs as one call with a ray per
+thread (``backend="auto"``, equal to this torch loop: ``tests/server/test_camera.py``).
 """
 
 from __future__ import annotations
