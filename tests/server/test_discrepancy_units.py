@@ -11,7 +11,7 @@ import torch
 
 from liquidtwin.discrepancy import CANDIDATES, Extension, Options, apply_physics, camera_for, load_model, save_model
 from liquidtwin.discrepancy.analysis import interval
-from liquidtwin.discrepancy.candidates import LIBRARY, _line, main_value
+from liquidtwin.discrepancy.candidates import COARSE, FINE, LIBRARY, _line, _vertex, main_value
 from liquidtwin.discrepancy.model import model_from_dict, rotation_deg
 from liquidtwin.discrepancy.residuals import CELL, EMPTY_W1, cell_metrics, coarse, pixel_iou
 from liquidtwin.camera import Camera
@@ -117,6 +117,42 @@ def test_interval_covers_the_mean_and_shrinks_with_data():
 def test_line_search_finds_a_minimum_between_grid_points():
     x, fx, trace = _line(lambda v: (math.log(v) - math.log(2.0)) ** 2, (0.5, 1.5, 4.0, 9.0), True)
     assert abs(x - 2.0) < 0.5 and fx < (math.log(1.5) - math.log(2.0)) ** 2 and len(trace) <= 8
+
+
+def test_refined_line_search_takes_the_parabola_minimum():
+    # exact for a parabola in log x: the refined estimate lands on the minimum, not a grid point
+    f = (lambda v: (math.log(v) - math.log(2.6)) ** 2)
+    x, fx, trace = _line(f, (0.5, 1.5, 4.0, 9.0), True, FINE)
+    assert abs(x - 2.6) < 1e-6 and fx < 1e-12
+    assert min(abs(t[0] - 2.6) for t in trace) > 0.05           # no point tried was the answer
+    x0, _, _ = _line(f, (0.5, 1.5, 4.0, 9.0), True, COARSE)     # coarse: the best point tried
+    assert any(abs(x0 - t) < 1e-12 for t in (0.5, 1.5, 4.0, 9.0, math.sqrt(1.5 * 4.0), math.sqrt(4.0 * 9.0)))
+
+
+def test_parabola_minimum_beats_the_best_point_on_noisy_losses():
+    # noisy evaluations (as chaotic rollouts give): over 200 draws the parabola's minimum is
+    # nearer the truth than the best point tried, and never outside the points it used
+    rng = np.random.default_rng(3)
+    xs = np.linspace(0.0, 1.0, 9)
+    err_vertex, err_best = [], []
+    for _ in range(200):
+        truth = rng.uniform(0.3, 0.7)
+        trace = [(float(x), (x - truth) ** 2 + rng.normal(0, 0.01)) for x in xs]
+        v = _vertex(trace, log=False)
+        best = min(trace, key=lambda t: t[1])[0]
+        if v is None:
+            v = best
+        assert 0.0 <= v <= 1.0
+        err_vertex.append(abs(v - truth))
+        err_best.append(abs(best - truth))
+    assert np.mean(err_vertex) < 0.8 * np.mean(err_best)
+
+
+def test_parabola_needs_three_points_and_a_minimum():
+    assert _vertex([(1.0, 0.0), (2.0, 1.0)], log=True) is None
+    assert _vertex([(1.0, 0.0), (2.0, 1.0), (3.0, 0.5)], log=False) is None      # opens downwards
+    v = _vertex([(1.0, 1.0), (2.0, 0.0), (3.0, 1.0)], log=False)
+    assert abs(v - 2.0) < 1e-9
 
 
 def test_options_are_checked():

@@ -276,6 +276,8 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
                 "heldout_gain": {"mean": float(gain.mean()), "ci95": interval(gain, blocks, rng, opt.bootstrap),
                                  "unit": "coarse loss"},
                 "heldout_iou_gain": float(held_iou.mean() - held_base_iou.mean()),
+                "best_tried": main_value(Extension(name, min(trace, key=lambda t: t[1])[0], base.base)),
+                "trace": [{"params": p, "fit_loss": v} for p, v in trace],
                 "fit_loss": fit_loss, "evaluations": len(trace), "refined": rounds > COARSE,
                 "evidence": evid.get(name, {}), "_ext": ext}
 

@@ -2,7 +2,8 @@
 
 Every candidate is fitted by the same rule: a coarse search over the parameter's realistic
 range (log-spaced where the parameter is a rate), then refinement between the best value and
-its neighbours. Every evaluation is a full open-loop rollout of the extended model through the
+its neighbours; the refined estimate is the minimum of a parabola through the best point and
+its neighbours, not the best point itself (the losses are noisy: see :func:`_vertex`). Every evaluation is a full open-loop rollout of the extended model through the
 fitting frames (physics and initial-fill candidates) or a re-drawing of the base rollout
 (observation candidates: time and camera offsets change what the camera shows, not the liquid).
 
@@ -62,9 +63,35 @@ def _ext(name: str, base: dict, **params) -> Extension:
     return Extension(name, {k: float(v) for k, v in params.items()}, dict(base))
 
 
+def _vertex(trace: list, log: bool) -> float | None:
+    """The minimum of a parabola fitted (least squares) to the best point of ``trace``
+    [(x, f), …] and up to two points on each side of it, in log x where ``log`` (and every x
+    > 0); clamped to those points' span. None when fewer than 3 points or the parabola opens
+    downwards. Each evaluation is a chaotic rollout, so f is noisy: the argmin of the points
+    picks noise as much as the minimum, the parabola averages over its neighbours."""
+    xs = sorted(trace)
+    k = min(range(len(xs)), key=lambda i: xs[i][1])
+    sel = xs[max(0, k - 2): k + 3]
+    if len(sel) < 3:
+        return None
+    x = np.array([t[0] for t in sel], float)
+    y = np.array([t[1] for t in sel], float)
+    use_log = log and bool((x > 0).all())
+    z = np.log(x) if use_log else x
+    if np.ptp(z) <= 0 or not np.isfinite(y).all():
+        return None
+    a, b, _ = np.polyfit((z - z.mean()) / np.ptp(z), y, 2)
+    if not a > 0:
+        return None
+    zv = float(np.clip(z.mean() - b / (2 * a) * np.ptp(z), z.min(), z.max()))
+    return math.exp(zv) if use_log else zv
+
+
 def _line(f: Callable[[float], float], grid, log: bool, rounds: int = COARSE) -> tuple[float, float, list]:
     """Minimise f over ``grid`` then refine ``rounds`` times around the best point (bisecting
-    towards both neighbours). Returns (x, f(x), trace)."""
+    towards both neighbours). Returns (x, f(x), trace): x is the best point of the trace after
+    the coarse grid alone; after refinement, the parabola's minimum (:func:`_vertex`) where
+    there is one."""
     trace = [(float(g), f(float(g))) for g in grid]
     for _ in range(rounds):
         xs = sorted(trace)
@@ -76,13 +103,17 @@ def _line(f: Callable[[float], float], grid, log: bool, rounds: int = COARSE) ->
                 if all(abs(mid - t[0]) > 1e-9 for t in trace):
                     trace.append((mid, f(mid)))
     x, fx = min(trace, key=lambda t: t[1])
+    v = _vertex(trace, log) if rounds > COARSE else None
+    if v is not None:
+        x, fx = v, f(v)
     return x, fx, trace
 
 
 def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict,
                   rounds: int = COARSE) -> tuple[Extension, float, list]:
-    """Fit candidate ``name`` with ``rounds`` refinements after the coarse grid; returns (best
-    extension, its fitting loss, [(params, loss), …]). The analysis caches evaluations, so a
+    """Fit candidate ``name`` with ``rounds`` refinements after the coarse grid; returns (the
+    extension: after the coarse grid alone its best point tried, after refinement the last
+    line search's parabola minimum; its fitting loss; [(params, loss), …]). The analysis caches evaluations, so a
     finer fit after a coarse one only pays for its new points."""
     c = LIBRARY[name]
     trace = []
@@ -104,11 +135,14 @@ def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict
         tm = math.atan2(math.sin(t) + math.sin(nb), math.cos(t) + math.cos(nb))
         if run(ax=a0 * math.cos(tm), az=a0 * math.sin(tm)) < min(scores):
             t = tm
-        _line(lambda a: run(ax=a * math.cos(t), az=a * math.sin(t)), (0.5, a0, 2.4), True, rounds)
+        a, _, _ = _line(lambda a: run(ax=a * math.cos(t), az=a * math.sin(t)), (0.5, a0, 2.4), True, rounds)
+        params = {"ax": a * math.cos(t), "az": a * math.sin(t)}
     elif name == "leak":
         r0 = c.grid[1]
         site = min(LEAK_SITES, key=lambda s: run(radius=r0, height_fraction=s[0], azimuth_deg=s[1]))
-        _line(lambda r: run(radius=r, height_fraction=site[0], azimuth_deg=site[1]), (0.003, 0.008), False, rounds)
+        r, _, _ = _line(lambda r: run(radius=r, height_fraction=site[0], azimuth_deg=site[1]), (0.003, 0.008), False,
+                        rounds)
+        params = {"radius": r, "height_fraction": site[0], "azimuth_deg": site[1]}
     elif name == "camera_offset":
         r = [0.0, 0.0, 0.0]
         for k in range(1 + (rounds > COARSE)):         # coordinate descent over the three axes
@@ -120,9 +154,13 @@ def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict
                 grid = c.grid if k == 0 else (r[axis] - 0.6, r[axis] + 0.6)
                 v, fv, tr = _line(f, tuple(grid) + (r[axis],), False, rounds)
                 r[axis] = v
+        params = {"rx": r[0], "ry": r[1], "rz": r[2]}
     else:
-        _line(lambda v: run(**{c.key: v}), c.grid, c.log, rounds)
-    params, loss = min(trace, key=lambda t: t[1])
+        v, _, _ = _line(lambda v: run(**{c.key: v}), c.grid, c.log, rounds)
+        params = {c.key: v}
+    if rounds <= COARSE:                               # coarse: the best point tried
+        params = min(trace, key=lambda t: t[1])[0]
+    loss = float(objective(_ext(name, base, **params)))   # cached by the analysis where tried
     return _ext(name, base, **params), loss, trace
 
 

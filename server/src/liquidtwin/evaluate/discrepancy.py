@@ -85,8 +85,9 @@ def _analyse(job) -> dict:
     from ..discrepancy import Options, analyse
     rep = analyse([path], out, options=Options(**opts))
     keep = ("decision", "baseline", "extended", "timing_s", "evaluations")
-    return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "heldout_gain",
-                                                                              "null_gains", "declared")}
+    return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "best_tried",
+                                                                              "heldout_gain", "null_gains", "declared",
+                                                                              "trace")}
                                                          for c in rep["candidates"]]}
 
 
@@ -108,6 +109,8 @@ def score(case: DiscCase, truth: dict, result: dict) -> dict:
         cand = next(c for c in result["candidates"] if c["name"] == named)
         row["fitted_value"] = cand["value"]
         row["rel_error"] = abs(cand["value"] - eff["value"]) / abs(eff["value"])
+        if cand.get("best_tried") is not None:      # the best point tried, for comparison
+            row["rel_error_best_tried"] = abs(cand["best_tried"] - eff["value"]) / abs(eff["value"])
         row["gain_ci95"] = cand["heldout_gain"]["ci95"]
     return row
 
@@ -124,9 +127,11 @@ def table(rows: list) -> dict:
         if not rs:
             continue
         errs = [r["rel_error"] for r in rs if "rel_error" in r]
+        tried = [r["rel_error_best_tried"] for r in rs if "rel_error_best_tried" in r]
         per[p] = {"runs": len(rs), "correct": sum(r["correct"] for r in rs),
                   "median_rel_error": float(np.median(errs)) if errs else None,
                   "within_25pct": sum(e <= PARAM_TOLERANCE for e in errs),
+                  "median_rel_error_best_tried": float(np.median(tried)) if tried else None,
                   "gain_ci_above_0": sum(1 for r in rs if r.get("gain_ci95") and r["gain_ci95"][0] > 0)}
     total = sum(v["runs"] for v in per.values())
     right = sum(v["correct"] for v in per.values())
@@ -140,11 +145,13 @@ def format_table(tab: dict, note: str) -> str:
     lines = ["planted \\ named".ljust(16) + " ".join(f"{short[n]:>6}" for n in named)]
     for p in classes:
         lines.append(f"{p:<16}" + " ".join(f"{tab['confusion'][p][n] or '.':>6}" for n in named))
-    lines += ["", f"{'class':<16}{'right':>8}{'param err (median)':>20}{'within 25 %':>13}{'gain CI > 0':>13}"]
+    lines += ["", f"{'class':<16}{'right':>8}{'param err (median)':>20}{'within 25 %':>13}{'gain CI > 0':>13}"
+                  f"{'best tried err':>16}"]
+    pct = (lambda e: "—" if e is None else f"{100 * e:.0f} %")
     for p in classes:
         v = tab["per_class"][p]
-        err = "—" if v["median_rel_error"] is None else f"{100 * v['median_rel_error']:.0f} %"
-        lines.append(f"{p:<16}{v['correct']:>4}/{v['runs']:<3}{err:>20}{v['within_25pct']:>13}{v['gain_ci_above_0']:>13}")
+        lines.append(f"{p:<16}{v['correct']:>4}/{v['runs']:<3}{pct(v['median_rel_error']):>20}{v['within_25pct']:>13}"
+                     f"{v['gain_ci_above_0']:>13}{pct(v.get('median_rel_error_best_tried')):>16}")
     lines += ["", f"named right: {tab['correct']}/{tab['runs']}", note]
     return "\n".join(lines)
 
