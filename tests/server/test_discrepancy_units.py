@@ -2,7 +2,6 @@
 and reject bad input, extensions change exactly what they name, the residual metrics equal
 hand-computed values, the block-resampled interval covers the mean."""
 
-import json
 import math
 
 import numpy as np

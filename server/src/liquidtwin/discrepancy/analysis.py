@@ -23,7 +23,7 @@ Only the recordings are read; nothing here knows of truth sidecars.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch

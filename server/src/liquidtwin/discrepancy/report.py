@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import Extension, model_from_dict, save_model
+from .model import model_from_dict, save_model
 from .residuals import MIN_CELLS
 
 
@@ -26,7 +26,7 @@ def _fmt(v, nd=3) -> str:
 def markdown(report: dict) -> str:
     """report.md: decision, base vs extended, the candidate ranking with the null, the split."""
     b, e = report["baseline"], report["extended"]
-    lines = [f"# Discrepancy report", "", f"Recordings: {', '.join(report['recordings'])} (camera {report['camera']})", "",
+    lines = ["# Discrepancy report", "", f"Recordings: {', '.join(report['recordings'])} (camera {report['camera']})", "",
              f"**Decision: `{report['decision']}`**", "",
              "| held-out | loss (lower is better) | 95 % interval | IOU |", "|---|---|---|---|",
              f"| base ({_fmt(b['params'])}) | {b['heldout_loss']:.3f} | {_fmt(b['ci95_loss'])} | {b['heldout_iou']:.3f} |",
