@@ -3,9 +3,10 @@
 Every candidate is fitted by the same rule: a coarse search over the parameter's realistic
 range (log-spaced where the parameter is a rate), then refinement between the best value and
 its neighbours; the refined estimate is the minimum of a parabola through the best point and
-its neighbours, not the best point itself (the losses are noisy: see :func:`_vertex`). Every evaluation is a full open-loop rollout of the extended model through the
-fitting frames (physics and initial-fill candidates) or a re-drawing of the base rollout
-(observation candidates: time and camera offsets change what the camera shows, not the liquid).
+its neighbours, not the best point itself (the losses are noisy: see :func:`_vertex`). Every
+evaluation is a full open-loop rollout of the extended model through the fitting frames
+(physics and initial-fill candidates) or a re-drawing of the base rollout (observation
+candidates: time and camera offsets change what the camera shows, not the liquid).
 
 ``objective(ext) -> float`` is supplied by the analysis (mean fitting loss of the extension).
 """
@@ -113,8 +114,8 @@ def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict
                   rounds: int = COARSE) -> tuple[Extension, float, list]:
     """Fit candidate ``name`` with ``rounds`` refinements after the coarse grid; returns (the
     extension: after the coarse grid alone its best point tried, after refinement the last
-    line search's parabola minimum; its fitting loss; [(params, loss), …]). The analysis caches evaluations, so a
-    finer fit after a coarse one only pays for its new points."""
+    line search's parabola minimum; its fitting loss; [(params, loss), …]). The analysis
+    caches evaluations, so a finer fit after a coarse one only pays for its new points."""
     c = LIBRARY[name]
     trace = []
 
