@@ -155,6 +155,15 @@ struct Frame {
   }
 };
 
+// One Frame per row of contiguous (M, 7) poses (x, y, z, qx, qy, qz, qw) of scalar type T.
+template <typename T>
+std::vector<Frame<T>> make_frames(const torch::Tensor& poses) {
+  const T* pp = poses.data_ptr<T>();
+  std::vector<Frame<T>> frames(poses.size(0));
+  for (int64_t j = 0; j < poses.size(0); ++j) frames[j].set(pp + 7 * j + 3, pp + 7 * j);
+  return frames;
+}
+
 // Object motion from pose a to pose b as interpolate_poses does it (lerp + short-arc nlerp).
 template <typename T>
 struct Motion {
@@ -220,9 +229,7 @@ torch::Tensor lower_bounds(torch::Tensor x, torch::Tensor poses, std::vector<tor
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "lower_bounds", [&] {
     using T = scalar_t;
     auto gs = make_grids<T>(grids, origins, cells);
-    const T* pp = poses.data_ptr<T>();
-    std::vector<Frame<T>> frames(m);
-    for (int64_t j = 0; j < m; ++j) frames[j].set(pp + 7 * j + 3, pp + 7 * j);
+    auto frames = make_frames<T>(poses);
     const T* px = x.data_ptr<T>();
     T* o = out.data_ptr<T>();
     at::parallel_for(0, n, 256, [&](int64_t b, int64_t e) {
@@ -265,9 +272,7 @@ std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Ten
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "collide_plan", [&] {
     using T = scalar_t;
     auto gs = make_grids<T>(grids, origins, cells);
-    const T* pp = pose_a.data_ptr<T>();
-    std::vector<Frame<T>> frames(m);
-    for (int64_t j = 0; j < m; ++j) frames[j].set(pp + 7 * j + 3, pp + 7 * j);
+    auto frames = make_frames<T>(pose_a);
     const T* px = x.data_ptr<T>();
     const T* pd = delta.data_ptr<T>();
     const T* sw = sweep.data_ptr<T>();
@@ -720,9 +725,7 @@ torch::Tensor segment_blocked(torch::Tensor start, torch::Tensor end, torch::Ten
   AT_DISPATCH_FLOATING_TYPES(start.scalar_type(), "segment_blocked", [&] {
     using T = scalar_t;
     auto gs = make_grids<T>(grids, origins, cells);
-    const T* pp = poses.data_ptr<T>();
-    std::vector<Frame<T>> frames(m);
-    for (int64_t j = 0; j < m; ++j) frames[j].set(pp + 7 * j + 3, pp + 7 * j);
+    auto frames = make_frames<T>(poses);
     const T* ps = start.data_ptr<T>();
     const T* pe = end.data_ptr<T>();
     bool* o = out.data_ptr<bool>();
