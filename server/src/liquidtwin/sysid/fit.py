@@ -107,22 +107,17 @@ class FitResult:
 
 
 class Views:
-    """What the camera sees of the true states, computed once per step index and kept:
-    which particles are visible (:func:`~.losses.seen`) and the projection image."""
+    """What the camera sees of the true states: the projection image of the visible particles
+    (:func:`~.losses.seen`), computed once per step index and kept."""
 
     def __init__(self, seq: Sequence):
-        self.seq, self._seen, self._image = seq, {}, {}
-
-    def seen(self, k: int) -> torch.Tensor:
-        if k not in self._seen:
-            s = self.seq
-            self._seen[k] = seen(s.camera, s.x[k], s.model.objects, s.poses[k])
-        return self._seen[k]
+        self.seq, self._image = seq, {}
 
     def image(self, k: int) -> torch.Tensor:
         if k not in self._image:
+            s = self.seq
             with torch.no_grad():
-                self._image[k] = projection(self.seq.camera, self.seq.x[k], self.seen(k))
+                self._image[k] = projection(s.camera, s.x[k], seen(s.camera, s.x[k], s.model.objects, s.poses[k]))
         return self._image[k]
 
 
