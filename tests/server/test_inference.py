@@ -10,8 +10,8 @@ import torch
 
 from liquidtwin.generate import generate, parse_effect_extra
 from liquidtwin.generate.catalog import QUICK_FILL
-from liquidtwin.inference import (DELTA, Bank, Posterior, fill_hypotheses, infer_blockage, infer_fill,
-                                  mask_log_likelihood, normalise, score)
+from liquidtwin.inference import (DELTA, Bank, Posterior, disagreement, fill_hypotheses, infer_blockage, infer_fill,
+                                  mask_log_likelihood, normalise, slack_radius, score)
 from liquidtwin.recordings import read_recording
 
 
@@ -44,6 +44,42 @@ def test_delta_likelihood_matches_a_direct_product():
     assert np.allclose(post.probability, normalise([-3.0, -1.0])) and post.best == "b"
     with pytest.raises(ValueError):
         mask_log_likelihood(pred, big, delta=0.5)
+
+
+def _unmatched(a: np.ndarray, b: np.ndarray, r: float) -> int:
+    """Brute force: pixels of mask a with no pixel of mask b within r (every pair measured)."""
+    pa, pb = np.argwhere(a), np.argwhere(b)
+    if len(pa) == 0 or len(pb) == 0:
+        return len(pa)
+    d = np.sqrt(((pa[:, None, :] - pb[None, :, :]) ** 2).sum(-1)).min(1)
+    return int((d > r).sum())
+
+
+def test_slack_disagreement_matches_brute_force_and_forgives_a_shifted_blob():
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        obs, pred = rng.random((30, 40)) < 0.04, rng.random((30, 40)) < 0.06
+        assert disagreement(pred, obs, 0) == int((pred != obs).sum())          # 0: SPEC's exact pixels
+        for r in (1.0, 1.5, 2.3, 5.0):
+            want = _unmatched(obs, pred, r) + _unmatched(pred, obs, r)
+            assert disagreement(pred, obs, r) == want
+            assert disagreement(torch.as_tensor(pred), torch.as_tensor(obs), r) == want
+    # The same 10x10 blob 6 px to the right: exact agreement counts both copies' non-overlap
+    # (twice 60 px), more than predicting nothing (100 px); a 6 px slack forgives the shift.
+    obs = np.zeros((60, 80), bool)
+    obs[20:30, 20:30] = True
+    pred = np.roll(obs, 6, axis=1)
+    empty = np.zeros_like(obs)
+    assert disagreement(pred, obs, 0) == 120 > disagreement(empty, obs, 0) == 100
+    assert disagreement(pred, obs, 6) == 0 < disagreement(empty, obs, 6) == 100
+    assert disagreement(pred, obs, 5) == 20                   # one column of each copy is 6 px away
+    # The slack is given at 640x480 and scales with sqrt(pixels); 60x80 is 1/8 of each side.
+    assert slack_radius(480, 640, 16) == 16 and slack_radius(240, 320, 16) == 8
+    assert mask_log_likelihood(pred, obs, slack_px=48) == pytest.approx(60 * 80 * math.log(DELTA))
+    assert mask_log_likelihood(pred, obs) == mask_log_likelihood(pred, obs, slack_px=0)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="slack"):
+            slack_radius(240, 320, bad)
 
 
 # ------------------------------------------------------------------ generated scenes
@@ -143,4 +179,14 @@ def test_bad_requests_fail_clearly(pour):
         infer_blockage(rec)
     with pytest.raises(ValueError, match="tracking mode"):
         infer_fill(rec, tracking="telepathy", fractions=(0.3,))
+    with pytest.raises(ValueError, match="slack"):
+        infer_fill(rec, slack_px=-2.0)
     torch.set_num_threads(1)
+
+
+def test_evaluate_rejects_a_bad_likelihood_before_generating(tmp_path, capsys):
+    from liquidtwin.cli import main
+    for kind, opt, val in (("fill", "--slack", "-1"), ("blockage", "--delta", "0.4"), ("fill", "--slack", "nan")):
+        with pytest.raises(SystemExit, match="--delta/--slack"):
+            main(["evaluate", kind, "--quick", opt, val, "--data", str(tmp_path / "d"), "--out", str(tmp_path / "o")])
+    assert not (tmp_path / "d").exists()                  # nothing was generated

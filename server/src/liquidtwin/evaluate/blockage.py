@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .benchmark import generate_all
-from .cli import add_common, save_results
+from .cli import add_common, add_likelihood_options, likelihood_options, save_results
 
 HELP = "pipe-junction blockage inference, 5 hypotheses, probability over time (thesis Fig. 7.7)"
 TRUTHS = ("none", "left_partial", "left_full", "right_partial", "right_full")
@@ -96,15 +96,14 @@ def configure(p) -> None:
                    metavar="T", help="scoring modes to compare (default: open_loop warp_field)")
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
-    p.add_argument("--delta", type=float, default=None, metavar="D",
-                   help="pixel agreement probability of the likelihood (default: SPEC's 0.50001)")
+    add_likelihood_options(p)
 
 
 def run(args) -> int:
     from tqdm import tqdm
-    from ..inference import DELTA, infer_blockage
+    from ..inference import infer_blockage
     from ..recordings import read_recording
-    delta = DELTA if args.delta is None else args.delta
+    delta, slack = likelihood_options(args)
     case_list = pipe_cases(quick=args.quick, base_seed=args.seed)
     paths = ensure_pipes(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
@@ -114,16 +113,16 @@ def run(args) -> int:
         planted = truth["effect"]
         row = {"case": case.as_dict(), "recording": str(path), "planted": planted, "modes": {}}
         for mode in args.trackers:
-            post = infer_blockage(rec, tracking=mode, frames=args.frames, delta=delta)
+            post = infer_blockage(rec, tracking=mode, frames=args.frames, delta=delta, slack_px=slack)
             k = post.names.index(case.truth)
             row["modes"][mode] = post.as_dict() | {
                 "correct": post.best == case.truth, "p_truth": float(post.probability[k]),
                 "time_to_sure_s": time_to_sure(post.times_s, post.probability_over_time[:, k])}
         results.append(row)
         _save(args, {"kind": "blockage", "partial": True, "cases": results})        # survives an interruption
-    text = format_table(results, args.trackers, args.quick, delta)
+    text = format_table(results, args.trackers, args.quick, delta, slack)
     print(text)
-    doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "delta": delta,
+    doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "delta": delta, "slack_px": slack,
            "frames": args.frames, "trackers": list(args.trackers), "table_text": text, "cases": results}
     right = {m: sum(r["modes"][m]["correct"] for r in results) for m in args.trackers}
     best = max(right, key=right.get)
@@ -138,7 +137,7 @@ def _save(args, doc: dict) -> Path:
     return save_results(args.out, doc)
 
 
-def format_table(results, modes, quick: bool, delta: float) -> str:
+def format_table(results, modes, quick: bool, delta: float, slack: float) -> str:
     lines = []
     for mode in modes:
         lines.append(f"[{mode}]  final probability per hypothesis (* = truth)")
@@ -154,8 +153,8 @@ def format_table(results, modes, quick: bool, delta: float) -> str:
             lines.append(r["case"]["truth"].ljust(15) + "".join(cells) + ("yes" if m["correct"] else "no").rjust(9)
                          + ("never" if t is None else f"{t:.2f} s").rjust(12))
         lines.append(f"correct {ok}/{len(results)}")
-    lines.append(f"{'quick' if quick else 'full'} pipe scenes, delta = {delta}; t(p>=0.99): session time from "
-                 f"which the truth keeps >= 0.99")
+    lines.append(f"{'quick' if quick else 'full'} pipe scenes, delta = {delta}, slack {slack:g} px at 640x480; "
+                 f"t(p>=0.99): session time from which the truth keeps >= 0.99")
     return "\n".join(lines)
 
 

@@ -60,6 +60,29 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                         "generated recordings say 4). A model setting, not the world's truth")
 
 
+def add_likelihood_options(p: argparse.ArgumentParser) -> None:
+    """Options of the δ-likelihood that scores hypothesis banks (fill, blockage)."""
+    p.add_argument("--delta", type=float, default=None, metavar="D",
+                   help="pixel agreement probability of the likelihood (default: SPEC's 0.50001)")
+    p.add_argument("--slack", type=float, default=None, metavar="PX",
+                   help="a pixel's label agrees when the other mask has it within PX pixels, at 640x480 and scaled "
+                        "with the image (default: 16, i.e. 8 px on quick 320x240 masks; 0: SPEC's exact pixels)")
+
+
+def likelihood_options(args) -> tuple[float, float]:
+    """(delta, slack_px) from :func:`add_likelihood_options`' options, checked."""
+    from ..inference import DELTA, SLACK_PX
+    from ..inference.likelihood import check_delta, slack_radius
+    delta = DELTA if args.delta is None else args.delta
+    slack = SLACK_PX if args.slack is None else args.slack
+    try:
+        check_delta(delta)
+        slack_radius(1, 1, slack)
+    except ValueError as e:
+        raise SystemExit(f"--delta/--slack: {e}") from None
+    return delta, slack
+
+
 def with_model_options(rec, iterations: int | None):
     """``rec`` with its scene spec's solver iterations set to ``iterations`` (None: unchanged)."""
     if iterations is not None:

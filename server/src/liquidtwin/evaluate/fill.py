@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from .benchmark import cases, ensure
-from .cli import add_common, add_model_options, save_results, with_model_options
+from .cli import (add_common, add_likelihood_options, add_model_options, likelihood_options, save_results,
+                  with_model_options)
 
 HELP = "initial-fill inference (empty/30/60/90 %) on the pouring benchmark (thesis Fig. 7.6)"
 FILLS = (0.0, 0.3, 0.6, 0.9)
@@ -41,8 +42,7 @@ def configure(p) -> None:
     p.add_argument("--cases", type=int, default=None, metavar="N", help="only the first N cases (smoke runs)")
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
-    p.add_argument("--delta", type=float, default=None, metavar="D",
-                   help="pixel agreement probability of the likelihood (default: SPEC's 0.50001)")
+    add_likelihood_options(p)
     p.add_argument("--batched", choices=("yes", "no"), default="yes",
                    help="simulate the hypotheses together (yes) or one after another (no); same numbers")
 
@@ -50,9 +50,9 @@ def configure(p) -> None:
 def run(args) -> int:
     from tqdm import tqdm
     from ..generate.catalog import QUICK_FILL
-    from ..inference import DELTA, fill_name, infer_fill
+    from ..inference import fill_name, infer_fill
     from ..recordings import read_recording
-    delta = DELTA if args.delta is None else args.delta
+    delta, slack = likelihood_options(args)
     case_list = cases(quick=args.quick, trials=args.trials, sources=tuple(args.sources), fills=FILLS,
                       kinds=tuple(args.kinds), base_seed=args.seed)
     if args.cases is not None:
@@ -67,7 +67,7 @@ def run(args) -> int:
         row = {"case": case.as_dict(), "recording": str(path), "truth": truth, "modes": {}}
         for mode in args.trackers:
             post = infer_fill(rec, fractions=FILLS, tracking=mode, scale=scale, frames=args.frames, delta=delta,
-                              batched=args.batched == "yes")
+                              slack_px=slack, batched=args.batched == "yes")
             k = post.names.index(truth)
             row["modes"][mode] = post.as_dict() | {"correct": post.best == truth, "p_truth": float(post.probability[k])}
         results.append(row)
@@ -75,9 +75,10 @@ def run(args) -> int:
     summary = {m: {"mean_p_truth": float(np.mean([r["modes"][m]["p_truth"] for r in results])),
                    "ranked_first": int(sum(r["modes"][m]["correct"] for r in results)), "sequences": len(results)}
                for m in args.trackers}
-    text = format_table(results, args.trackers, names, summary, args.quick, delta, args)
+    text = format_table(results, args.trackers, names, summary, args.quick, delta, slack, args)
     print(text)
     doc = {"kind": "fill", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed, "delta": delta,
+           "slack_px": slack,
            "iterations": args.iterations,
            "scale": scale, "frames": args.frames, "trackers": list(args.trackers), "hypotheses": names,
            "summary": summary, "table_text": text, "cases": results}
@@ -93,7 +94,7 @@ def _save(args, doc: dict) -> Path:
     return save_results(args.out, doc)
 
 
-def format_table(results, modes, names, summary, quick, delta, args) -> str:
+def format_table(results, modes, names, summary, quick, delta, slack, args) -> str:
     lines = []
     for mode in modes:
         lines.append(f"[{mode}]  probability per hypothesis (* = true fill)")
@@ -106,7 +107,8 @@ def format_table(results, modes, names, summary, quick, delta, args) -> str:
         lines.append(f"mean probability on the truth {s['mean_p_truth']:.3f}; truth ranked first "
                      f"{s['ranked_first']}/{s['sequences']}")
     lines.append(f"{'quick' if quick else 'full'} benchmark, trials {args.trials}, base seed {args.seed}, "
-                 f"delta = {delta}" + (f", first {args.frames} pose samples" if args.frames else "")
+                 f"delta = {delta}, slack {slack:g} px at 640x480"
+                 + (f", first {args.frames} pose samples" if args.frames else "")
                  + (f", model solver iterations {args.iterations}" if args.iterations else ""))
     return "\n".join(lines)
 

@@ -9,11 +9,13 @@ Both return a :class:`Posterior` (probabilities, log likelihoods, probability ov
 from .bank import OFFSET_M, Bank, Hypothesis, make_tracker
 from .blockage import BLOCKAGES, PARTIAL, blockage_hypotheses, infer_blockage
 from .fill import FRACTIONS, fill_hypotheses, fill_name, infer_fill
-from .likelihood import DELTA, Posterior, frame_log_likelihood, mask_log_likelihood, normalise
+from .likelihood import (DELTA, SLACK_PX, Posterior, disagreement, frame_log_likelihood, mask_log_likelihood, near,
+                         normalise, slack_radius)
 from .run import camera_at, run_bank, score
 
 __all__ = [
     "OFFSET_M", "Bank", "Hypothesis", "make_tracker", "BLOCKAGES", "PARTIAL", "blockage_hypotheses", "infer_blockage",
-    "FRACTIONS", "fill_hypotheses", "fill_name", "infer_fill", "DELTA", "Posterior", "frame_log_likelihood",
-    "mask_log_likelihood", "normalise", "camera_at", "run_bank", "score",
+    "FRACTIONS", "fill_hypotheses", "fill_name", "infer_fill", "DELTA", "SLACK_PX", "Posterior", "disagreement",
+    "frame_log_likelihood", "mask_log_likelihood", "near", "normalise", "slack_radius", "camera_at", "run_bank",
+    "score",
 ]

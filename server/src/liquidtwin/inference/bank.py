@@ -27,6 +27,7 @@ from ..session._cull import cull_fallen
 from ..session.engine import MIN_RADIUS_PX, NEAR_M, OCCLUSION_MARGIN_PX
 from ..sim import FluidModel, FluidState, collide_move, particle_radius, step
 from ..tracking import MapFilter, Observation, OpenLoop, WarpField
+from .likelihood import disagreement, near, slack_radius
 
 #: Default distance between neighbouring hypotheses along world x, m.
 OFFSET_M = 2.0
@@ -149,15 +150,19 @@ class Bank:
         ids = torch.sort(self.state.ids).values
         return x[self.group_of_id[ids] == k] - self._shifts(x.dtype)[k]
 
-    def observe(self, camera, mask: torch.Tensor) -> np.ndarray:
+    def observe(self, camera, mask: torch.Tensor, slack_px: float = 0.0) -> np.ndarray:
         """Score and (closed loop) correct every hypothesis with one observed ``mask`` (H, W)
         bool of ``camera``; returns (K,) int64 pixels where each hypothesis's model mask
-        (visible particles drawn as projected spheres) disagrees with the observation."""
+        (visible particles drawn as projected spheres) disagrees with the observation, with a
+        slack of ``slack_px`` at 640×480 (:func:`.likelihood.disagreement`; 0: exact)."""
         mask = torch.as_tensor(mask, dtype=torch.bool)
         out = np.zeros(self.K, np.int64)
         if self.state is None:
             out[:] = int(mask.sum())
             return out
+        radius = slack_radius(camera.height, camera.width, slack_px)
+        mask_np = mask.cpu().numpy()
+        mask_near = near(mask_np, radius)
         s = self.state
         group = self.group_of_id[s.ids]
         poses = self._poses.to(s.x.dtype)            # the scene's own poses now
@@ -184,7 +189,7 @@ class Bank:
                 occ = [self.models[k].objects[j] for j in self.occluders]
                 seen = visible(camera, xk, occ, occ_poses, margin_px=OCCLUSION_MARGIN_PX, near=NEAR_M)
             cov = sphere_coverage(uv, r_px, seen, camera.height, camera.width)
-            out[k] = int(((cov > 0) != mask).sum())
+            out[k] = disagreement(cov > 0, mask_np, radius, observed_near=mask_near)
             if isinstance(self.trackers[k], OpenLoop) or not bool(seen.any()):
                 continue
             typical = float(r_px[seen].median())
