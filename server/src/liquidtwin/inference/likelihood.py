@@ -9,7 +9,7 @@ through their sums over frames, normalised with a softmax (uniform prior).
 **Slack** (liquidtwin's extension, ``slack_px`` > 0): a pixel's label counts as agreeing when
 the other mask has the same label within ``slack_px`` (Euclidean) — an observed liquid pixel
 with predicted liquid that near, a predicted liquid pixel with observed liquid that near —
-the slack of the thesis's precision–recall scoring (§4.4) put into the likelihood.
+the slack of the thesis's precision–recall scoring (§4.5) put into the likelihood.
 Disagreeing pixels are then the observed liquid pixels with no predicted liquid within the
 slack plus the predicted ones with no observed liquid within it; 0 is SPEC's exact pixel
 agreement. Why: a simulated pour is chaotic at the scale of its droplets and sloshing, so a
