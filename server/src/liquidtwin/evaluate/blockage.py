@@ -5,7 +5,7 @@ its own seed (``base_seed + index``); the world's plug is planted with the gener
 ``blockage`` effect (``blockage=0.6:leg=left`` is the partial left plug: the same 60 % plug
 the hypotheses use; 1.0 closes the leg). Each recording is analysed blind by
 :func:`liquidtwin.inference.infer_blockage` — the five hypotheses simulated together and
-scored with the δ-likelihood (SPEC §3) — open loop and warp-field tracked. Scoring reads
+scored with the δ-likelihood (SPEC §3, ``--slack`` px of slack) — open loop and warp-field tracked. Scoring reads
 the truth (``REC.truth.json``) only to mark the true hypothesis.
 
 Table: per recording and tracker, the final probability of every hypothesis (truth marked

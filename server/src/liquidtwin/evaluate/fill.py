@@ -4,7 +4,7 @@ Cases: the shared pouring benchmark (:mod:`.benchmark`) with fills empty, 30, 60
 cup and bottle × partial/hold/dump × trials, each with jittered world parameters, sensor
 noise and one mild effect. Each recording is analysed blind by
 :func:`liquidtwin.inference.infer_fill` (the four fill hypotheses simulated together, scored
-with the δ-likelihood of SPEC §3), open loop and warp-field tracked. Quick scenes hold
+with the δ-likelihood of SPEC §3, ``--slack`` px of slack), open loop and warp-field tracked. Quick scenes hold
 ``generate.catalog.QUICK_FILL`` of the full scenes' liquid, so their hypotheses are scaled
 the same way (configuration, not truth). Scoring reads the case's true fill from the case
 list (``REC.case.json``).

@@ -1,5 +1,5 @@
 """Hidden-state inference (SPEC §3, thesis §7.4): banks of scene hypotheses simulated together,
-scored against the observed liquid masks with the δ-likelihood.
+scored against the observed liquid masks with the δ-likelihood (with a slack: ``likelihood``).
 
 ``infer_fill`` — the initial fill of a container (empty, 30, 60, 90 % by default);
 ``infer_blockage`` — the pipe junction's blockage (none, left/right × partial/full).
