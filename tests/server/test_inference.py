@@ -184,7 +184,7 @@ def test_bad_requests_fail_clearly(pour):
     torch.set_num_threads(1)
 
 
-def test_evaluate_rejects_a_bad_likelihood_before_generating(tmp_path, capsys):
+def test_evaluate_rejects_a_bad_likelihood_before_generating(tmp_path):
     from liquidtwin.cli import main
     for kind, opt, val in (("fill", "--slack", "-1"), ("blockage", "--delta", "0.4"), ("fill", "--slack", "nan")):
         with pytest.raises(SystemExit, match="--delta/--slack"):

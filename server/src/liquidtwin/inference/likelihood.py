@@ -32,8 +32,6 @@ DELTA = 0.50001
 #: seed 100 (open loop and warp field, 16 analyses; truth ranked first 5/16 with no slack, 6 at
 #: 4 px, 11 at 8 px, 10 at 12 px, all at 320×240); ``liquidtwin evaluate fill`` reports seed 0.
 SLACK_PX = 16.0
-#: The image size the slack is given at, (height, width) px.
-SLACK_REFERENCE = (480, 640)
 
 
 def check_delta(delta: float) -> float:
@@ -53,11 +51,13 @@ def frame_log_likelihood(disagree: int, pixels: int, delta: float = DELTA) -> fl
 
 
 def slack_radius(height: int, width: int, slack_px: float = SLACK_PX) -> float:
-    """The slack in px for an (height, width) image: ``slack_px`` (at 640×480) × √(H·W / 640·480)."""
+    """The slack in px for an (height, width) image: ``slack_px`` (at 640×480) scaled as the
+    warp field's kernel is (:func:`liquidtwin.tracking.warp.image_scale`, √(H·W / 640·480))."""
+    from ..tracking.warp import image_scale
     slack_px = float(slack_px)
     if not (math.isfinite(slack_px) and slack_px >= 0):
         raise ValueError(f"slack must be a distance >= 0 px, got {slack_px}")
-    return slack_px * math.sqrt(height * width / (SLACK_REFERENCE[0] * SLACK_REFERENCE[1]))
+    return slack_px * image_scale(height, width)
 
 
 def _numpy_mask(m) -> np.ndarray:
