@@ -170,7 +170,7 @@ def _plot(out: Path, results: list[dict], base: dict, data: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..perception import baseline_scores, pr_curve
+    from ..perception import baseline_scores
     from ..perception.data import load_split
     clips = load_split(data, "test")
     y = np.concatenate([c.masks for c in clips])
