@@ -88,7 +88,10 @@ def test_a_short_plate_run_sends_the_liquid_towards_its_bowl(plate):
     target = 6
     phi = 2 * math.pi * target / 8
     direction = np.array([math.cos(phi), math.sin(phi)])
-    r = run_plate(setup, model, state, target, seconds=0.35)
+    seen = []
+    r = run_plate(setup, model, state, target, seconds=0.35, on_step=lambda k, s: seen.append((k, s)))
+    assert [k for k, _ in seen] == list(range(len(r.tilts_deg)))           # every executed step, in order
+    assert np.allclose(seen[-1][1].x.detach().mean(0).numpy(), r.centroid)  # the last one is the final state
     tilt = np.radians(r.tilts_deg[-1])
     # The plate's normal after the tilt: where it leans, the liquid flows.
     R = quat_to_matrix(tilt_quaternion(torch.tensor(tilt[None]))[0]).numpy()

@@ -109,9 +109,10 @@ def send_loss(aim: torch.Tensor, upright: float = UPRIGHT_WEIGHT, lookahead_s: f
 
 def run_plate(setup, model, state, target: int, *, seconds: float = 2.5, horizon: int = 10,
               step_size: float = 0.5, upright: float = UPRIGHT_WEIGHT, lookahead_s: float = LOOKAHEAD_S,
-              progress: bool = False) -> PlateRun:
+              progress: bool = False, on_step=None) -> PlateRun:
     """Run the MPC on the plate scene from ``state`` (liquid resting on the plate) for
-    ``seconds`` with bowl ``target`` as the goal; scores where the liquid ended."""
+    ``seconds`` with bowl ``target`` as the goal; scores where the liquid ended.
+    ``on_step(k, state)``: called after each executed step k (e.g. to follow the particles)."""
     if not 0 <= target < 8:
         raise ControlError(f"the plate scene has bowls 0-7, got target {target}")
     space = plate_space(setup)
@@ -126,6 +127,8 @@ def run_plate(setup, model, state, target: int, *, seconds: float = 2.5, horizon
         q = space.positions(q, u[None], model.dt)[0]
         with torch.no_grad():
             state = step(model, state, space.poses(q[None])[0].to(state.x.dtype))
+        if on_step is not None:
+            on_step(len(tilts), state)
         tilts.append(np.degrees(q.numpy()))
         losses.append(loss)
     wall = time.perf_counter() - t0
