@@ -7,7 +7,8 @@ Generates (into a temporary directory, fixed seeds) one quick (320×240) and one
 (640×480) ``pour_hold`` recording, then draws the true particles (truth sidecar; scoring
 only) (a) as 5 px discs (SPEC §2) and (b) as projected spheres of the model's particle
 radius (what the session engine draws), occluded by the objects at their true poses, and
-prints the mean IOU over frames whose observed mask has ≥ 50 px. This is the ceiling of
+prints the mean IOU over frames whose observed mask has ≥ 50 px, and how many pixels each
+drawing covers per observed liquid pixel over those frames. This is the ceiling of
 every tracker's IOU in ``liquidtwin evaluate tracking`` and the numbers that
 ``session/engine.py`` cites. Appends one record per recording to bench/history.jsonl.
 """
@@ -51,9 +52,12 @@ def measure(quick: bool, tmp: Path, min_px: int = 50) -> dict:
     out = {}
     for label, disc in (("discs_5px", 5.0), ("spheres", None)):
         s = ceiling_series(rec, path, eng, cam, disc_px=disc)
-        v = [i for i, n in zip(s["iou"], s["observed_px"]) if n >= min_px]
-        out[label] = round(float(np.mean(v)), 4)
-        out["frames"] = len(v)
+        keep = [k for k, n in enumerate(s["observed_px"]) if n >= min_px]
+        out[label] = round(float(np.mean([s["iou"][k] for k in keep])), 4)
+        # > 1: the drawing covers more pixels than the camera saw liquid on
+        out[f"{label}_drawn_over_observed_px"] = round(sum(s["model_px"][k] for k in keep)
+                                                        / max(sum(s["observed_px"][k] for k in keep), 1), 3)
+        out["frames"] = len(keep)
     c = rec.cameras[cam]
     return dict(what="mask_ceiling", scene=SCENE, source=SOURCE, fill=FILL, seed=SEED, quick=quick,
                 width=int(c.width), height=int(c.height), particles=eng.n_particles, generate_s=round(gen_s, 1),

@@ -88,7 +88,8 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
       frames: only masks up to the ``frames``-th pose sample (None: all).
       disc_px: draw fixed discs of this radius, px (SPEC §2's 5 px) instead of projected spheres.
     Returns:
-      {"t_s": [...] s, "iou": [...], "observed_px": [...]} per mask frame.
+      {"t_s": [...] s, "iou": [...], "observed_px": [...], "model_px": [...]} per mask frame
+      (``model_px``: pixels the true particles cover when drawn this way).
     """
     import torch
     from ..camera import model_mask, sphere_coverage, sphere_radius_px, visible
@@ -103,7 +104,7 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
     stamps, masks = rec.masks[camera]
     limit = None if frames is None else int(rec.pose_times_ns[min(frames, len(rec.pose_times_ns)) - 1])
     t0 = int(rec.pose_times_ns[0])
-    out = {"t_s": [], "iou": [], "observed_px": []}
+    out = {"t_s": [], "iou": [], "observed_px": [], "model_px": []}
     pose_stamps = truth["pose_stamps_ns"]
     for s, m in zip(stamps, masks):
         if limit is not None and s > limit:
@@ -123,6 +124,7 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
         out["t_s"].append((int(s) - t0) * 1e-9)
         out["iou"].append(float(mask_iou(model.cpu(), obs)))
         out["observed_px"].append(int(obs.sum()))
+        out["model_px"].append(int(model.sum()))
     return out
 
 
