@@ -4,7 +4,9 @@ reached the bowl, what was spilled, and the wall time per MPC update.
     python bench/control_pour.py --fill 60 --targets 20 --step-size 0.5
 
 Quick pour_hold scene (cup → bowl, seed 0), the cup filled with ``--fill`` ml and settled.
-Appends one JSON record per target to bench/history.jsonl (``--no-history`` to skip).
+What is spilled is split into liquid that was in the bowl at some step and left it again
+(over the rim) and liquid that never got in. Appends one JSON record per target to
+bench/history.jsonl (``--no-history`` to skip).
 """
 
 from __future__ import annotations
@@ -50,7 +52,12 @@ def main() -> None:
     src, dst = setup.index("source"), setup.index("target")
     every = None if a.trace is None else max(1, int(round(a.trace / model.dt)))
 
+    seen = {}
+
     def trace(i, s, q, ctrl):
+        in_bowl = held(model, s, dst, setup.objects[dst].model)[0]
+        seen["ever"] = seen["ever"] | set(s.ids[torch.as_tensor(in_bowl)].tolist())
+        seen["last"] = s
         if every is None or i % every:
             return
         cup = int(held(model, s, src, setup.objects[src].model)[0].sum()) * mlpp
@@ -60,11 +67,17 @@ def main() -> None:
 
     for target in (float(t) for t in a.targets.split(",")):
         t0 = time.perf_counter()
+        seen.update(ever=set(), last=state)
         r = run_pour(setup, model, state, target, mlpp, step_size=a.step_size, anticipate=not a.no_anticipate,
                      progress=a.trace is None, approach_rate=a.approach_rate, max_seconds=a.max_seconds,
                      on_step=trace)
+        last = seen["last"]
+        out = ~(held(model, last, src, setup.objects[src].model)[0] | held(model, last, dst, setup.objects[dst].model)[0])
+        spilled_ids = last.ids[torch.as_tensor(out)].tolist()
+        after = sum(1 for i in spilled_ids if i in seen["ever"])
         rec = {"what": "mpc_pour", "particles": int(state.x.shape[0]), "target_ml": target,
                "poured_ml": r.poured_ml, "left_ml": r.left_ml, "spilled_ml": r.spilled_ml,
+               "spilled_after_entering_ml": after * mlpp, "spilled_never_entered_ml": (len(spilled_ids) - after) * mlpp,
                "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "approach_rate": a.approach_rate,
                "max_angle_deg": float(np.max(r.angles_deg)),
                "update_s": r.update_s, "wall_s": time.perf_counter() - t0, "peak_mem_bytes": None}
