@@ -2,6 +2,7 @@
 model mask, scored against the recording's own (noisy) generated masks.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/mask_ceiling.py [--no-full] [--no-history]
+    OMP_NUM_THREADS=1 .venv/bin/python bench/mask_ceiling.py --data eval-data   # every recording there
 
 Generates (into a temporary directory, fixed seeds) one quick (320×240) and one full
 (640×480) ``pour_hold`` recording, then draws the true particles (truth sidecar; scoring
@@ -11,6 +12,10 @@ prints the mean IOU over frames whose observed mask has ≥ 50 px, and how many 
 drawing covers per observed liquid pixel over those frames. This is the ceiling of
 every tracker's IOU in ``liquidtwin evaluate tracking`` and the numbers that
 ``session/engine.py`` cites. Appends one record per recording to bench/history.jsonl.
+
+``--data DIR`` measures instead every recording in DIR that has a truth sidecar (e.g. the
+benchmark recordings ``liquidtwin evaluate tracking --data DIR`` generated) and prints the
+mean over them.
 """
 
 from __future__ import annotations
@@ -46,6 +51,12 @@ def measure(quick: bool, tmp: Path, min_px: int = 50) -> dict:
     start = time.perf_counter()
     generate(SCENE, path, seed=SEED, quick=quick, choices={"source": SOURCE, "fraction": FILL})
     gen_s = time.perf_counter() - start
+    return dict(scene=SCENE, source=SOURCE, fill=FILL, seed=SEED, quick=quick, generate_s=round(gen_s, 1),
+                **measure_recording(path, min_px))
+
+
+def measure_recording(path: Path, min_px: int = 50) -> dict:
+    """The ceilings of one recording with a truth sidecar (``path.with_suffix('.truth.npz')``)."""
     rec = read_recording(path, images=False)
     eng = engine_for(rec, "open_loop")
     cam = next(iter(rec.masks))
@@ -53,15 +64,14 @@ def measure(quick: bool, tmp: Path, min_px: int = 50) -> dict:
     for label, disc in (("discs_5px", 5.0), ("spheres", None)):
         s = ceiling_series(rec, path, eng, cam, disc_px=disc)
         keep = [k for k, n in enumerate(s["observed_px"]) if n >= min_px]
-        out[label] = round(float(np.mean([s["iou"][k] for k in keep])), 4)
+        out[label] = round(float(np.mean([s["iou"][k] for k in keep])), 4) if keep else None
         # > 1: the drawing covers more pixels than the camera saw liquid on
         out[f"{label}_drawn_over_observed_px"] = round(sum(s["model_px"][k] for k in keep)
                                                         / max(sum(s["observed_px"][k] for k in keep), 1), 3)
         out["frames"] = len(keep)
     c = rec.cameras[cam]
-    return dict(what="mask_ceiling", scene=SCENE, source=SOURCE, fill=FILL, seed=SEED, quick=quick,
-                width=int(c.width), height=int(c.height), particles=eng.n_particles, generate_s=round(gen_s, 1),
-                mean_iou=out, min_px=min_px, commit=_commit(),
+    return dict(what="mask_ceiling", recording=Path(path).name, width=int(c.width), height=int(c.height),
+                particles=eng.n_particles, mean_iou=out, min_px=min_px, commit=_commit(),
                 date=datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
 
@@ -69,14 +79,31 @@ def main(argv=None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--no-full", action="store_true", help="skip the full-size recording (~1.5 min to generate)")
     p.add_argument("--no-history", action="store_true", help="do not append to bench/history.jsonl")
+    p.add_argument("--data", type=Path, default=None, metavar="DIR",
+                   help="measure every recording in DIR that has a truth sidecar instead of generating two")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     records = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for quick in (True,) if args.no_full else (True, False):
-            r = measure(quick, Path(tmp))
+    if args.data is not None:
+        paths = sorted(q for q in args.data.glob("*.mcap") if q.with_suffix(".truth.npz").exists())
+        if not paths:
+            raise SystemExit(f"no recordings with a truth sidecar (NAME.truth.npz) in {args.data}")
+        for q in paths:
+            r = measure_recording(q)
+            if r["mean_iou"]["frames"] == 0:
+                print(f"{q.name}: no frame with >= {r['min_px']} observed liquid px, skipped", flush=True)
+                continue
             print(json.dumps(r), flush=True)
             records.append(r)
+        for key in ("discs_5px", "spheres", "discs_5px_drawn_over_observed_px", "spheres_drawn_over_observed_px"):
+            print(f"mean over {len(records)} recordings, {key}: "
+                  f"{np.mean([r['mean_iou'][key] for r in records]):.3f}", flush=True)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            for quick in (True,) if args.no_full else (True, False):
+                r = measure(quick, Path(tmp))
+                print(json.dumps(r), flush=True)
+                records.append(r)
     if not args.no_history:
         with HISTORY.open("a") as f:
             for r in records:
