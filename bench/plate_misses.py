@@ -32,16 +32,6 @@ from _record import emit
 RESULTS = Path(__file__).resolve().parent / "results" / "plate_misses_quick.json"
 
 
-def _scene():
-    from liquidtwin.scenes.fill import fill_container
-    from liquidtwin.sysid.data import scene_model
-    setup, model = scene_model("plate_tilt", 0, True)
-    k = setup.index("plate")
-    state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
-                              volume_ml=dict(setup.fills)["plate"], settle_s=0.5)
-    return setup, model, state
-
-
 def _in_bowl(setup, model, state, target: int) -> np.ndarray:
     """(N,) bool by particle id: held by bowl ``target``."""
     from liquidtwin.scenes.liquid_level import held
@@ -72,9 +62,9 @@ def replay(setup, model, state, target: int, tilts_deg: np.ndarray, substeps: in
 
 def run_target(work) -> dict:
     target, substeps = work
-    from liquidtwin.control.plate import run_plate
+    from liquidtwin.control.plate import plate_scene, run_plate
     torch.set_num_threads(1)
-    setup, model, state = _scene()
+    setup, model, state = plate_scene(0, True)
     n = int(state.x.shape[0])
     held_by_step, speed_by_step = [], []
 
@@ -97,7 +87,7 @@ def run_target(work) -> dict:
                                 "p90": float(np.percentile(entry_speed, 90))} if len(entry_speed) else None,
             "entry_steps": [int(first[ever].min()), int(first[ever].max())] if ever.any() else None,
             "first_splash_step": min(left_at) if left_at else None,
-            "replay_in_target": {str(m): replay(setup, model, _scene()[2], target, r.tilts_deg, m) for m in substeps}}
+            "replay_in_target": {str(m): replay(setup, model, plate_scene(0, True)[2], target, r.tilts_deg, m) for m in substeps}}
 
 
 def main() -> None:

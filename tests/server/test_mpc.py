@@ -11,20 +11,16 @@ import pytest
 import torch
 
 from liquidtwin.control import MPC, ControlError
-from liquidtwin.control.plate import MAX_RATE, MAX_TILT, plate_space, run_plate, target_point, tilt_quaternion
+from liquidtwin.control.plate import MAX_RATE, MAX_TILT, plate_scene, plate_space, run_plate, target_point, \
+    tilt_quaternion
 from liquidtwin.scenes.fill import fill_container
 from liquidtwin.sim import make_state, quat_to_matrix
 from liquidtwin.sim.sdf import quat_from_axis_angle
-from liquidtwin.sysid.data import scene_model
 
 
 @pytest.fixture(scope="module")
 def plate():
-    setup, model = scene_model("plate_tilt", 0, True)
-    k = setup.index("plate")
-    state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
-                              volume_ml=dict(setup.fills)["plate"], settle_s=0.5)
-    return setup, model, state
+    return plate_scene(0, True)
 
 
 def test_tilt_quaternion_is_rx_then_rz():

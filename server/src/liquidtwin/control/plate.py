@@ -80,6 +80,18 @@ def tilt2_of(pose, rest_pose) -> np.ndarray:
     return np.array([math.atan2(-r[1, 2], r[2, 2]), math.atan2(-r[0, 1], r[0, 0])])
 
 
+def plate_scene(seed: int = 0, quick: bool = True):
+    """(setup, model, state) of the catalogue's plate scene drawn with ``seed``: its liquid
+    filled onto the plate and settled for 0.5 s (where every plate run starts)."""
+    from ..scenes.fill import fill_container
+    from ..sysid.data import scene_model
+    setup, model = scene_model("plate_tilt", seed, quick)
+    k = setup.index("plate")
+    state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
+                              volume_ml=dict(setup.fills)["plate"], settle_s=0.5)
+    return setup, model, state
+
+
 def plate_space(setup) -> ControlSpace:
     return tilt2_space(setup.poses_at(0.0), setup.index("plate"))
 

@@ -76,19 +76,13 @@ def configure(p) -> None:
 def run_target(work) -> dict:
     import torch
 
-    from ..control.plate import run_plate
-    from ..scenes.fill import fill_container
-    from ..sysid.data import scene_model
+    from ..control.plate import plate_scene, run_plate
     target, seed, quick, seconds, horizon, step_size, served = work
     torch.set_num_threads(1)
     if served:
         from .served import serve_plate
         return serve_plate(target, seed, quick, seconds, served)
-    setup, model = scene_model("plate_tilt", seed, quick)
-    poses = torch.as_tensor(setup.poses_at(0.0))
-    k = setup.index("plate")
-    state, _ = fill_container(model, poses, k, setup.objects[k].model, volume_ml=dict(setup.fills)["plate"],
-                              settle_s=0.5)
+    setup, model, state = plate_scene(seed, quick)
     r = run_plate(setup, model, state, target, seconds=seconds, horizon=horizon, step_size=step_size)
     return {"target": target, "particles": int(state.x.shape[0]), "caught": r.caught, "in_bowls": r.in_bowls,
             "spilled": r.spilled, "max_tilt_deg": float(np.abs(r.tilts_deg).max()), "tilts_deg": r.tilts_deg.tolist(),
