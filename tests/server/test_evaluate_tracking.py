@@ -53,10 +53,10 @@ def test_cli_writes_the_table_json_and_figures(evaluated, capsys):
             assert doc["table"][row][col] == pytest.approx(want)
         for row in ("bottle", "60 %", "90 %"):
             assert doc["table"][row][col] is None
-    ceiling = series["ceiling"]                  # IOU <= smaller mask / larger mask, frame by frame
+    ceiling = series["ceiling"]                  # IOU <= smaller mask / larger mask (1 when both empty)
     assert len(ceiling["model_px"]) == len(ceiling["iou"]) and sum(ceiling["model_px"]) > 0
     for i, m, o in zip(ceiling["iou"], ceiling["model_px"], ceiling["observed_px"]):
-        assert i <= min(m, o) / max(m, o, 1) + 1e-9
+        assert i <= (min(m, o) / max(m, o) if max(m, o) else 1.0) + 1e-9
     lines = doc["table_text"].splitlines()
     assert [ln.split()[0] for ln in lines[1:7]] == ["cup", "bottle", "30", "60", "90", "overall"]
     assert ">= 50 px" in lines[-1]
