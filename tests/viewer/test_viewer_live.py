@@ -300,7 +300,10 @@ def test_feed_over_zenoh_lists_sessions_fetches_meshes_and_buffers_streams():
         deadline = time.monotonic() + 10
         snap = feed.snapshot("demo")
         i = 0
-        while time.monotonic() < deadline and (snap.frames < 3 or snap.meshes is None):
+        # Each stream has its own subscriber: a frame's particles can be counted before its
+        # metrics or overlay arrive (or before their subscribers were declared), so wait for all.
+        while time.monotonic() < deadline and (snap.frames < 3 or snap.meshes is None or len(snap.iou.t) < 3
+                                               or snap.overlay is None):
             fake.frame("demo", i, n=500)
             i += 1
             time.sleep(0.05)
