@@ -61,7 +61,7 @@ def main() -> None:
         if every is None or i % every:
             return
         cup = int(held(model, s, src, setup.objects[src].model)[0].sum()) * mlpp
-        bowl = int(held(model, s, dst, setup.objects[dst].model)[0].sum()) * mlpp
+        bowl = int(in_bowl.sum()) * mlpp
         print(f"  {(i + 1) * model.dt:5.2f} s  tilt {np.degrees(float(q)):5.1f} deg  cup {cup:5.1f}  bowl {bowl:5.1f}  "
               f"neither {rep.settled_ml - cup - bowl:5.1f} ml{'  (returning)' if ctrl.done else ''}", flush=True)
 

@@ -87,7 +87,8 @@ def run_target(work) -> dict:
                                 "p90": float(np.percentile(entry_speed, 90))} if len(entry_speed) else None,
             "entry_steps": [int(first[ever].min()), int(first[ever].max())] if ever.any() else None,
             "first_splash_step": min(left_at) if left_at else None,
-            "replay_in_target": {str(m): replay(setup, model, plate_scene(0, True)[2], target, r.tilts_deg, m) for m in substeps}}
+            # run_plate never changes ``state`` (steps return new states): every replay starts from it
+            "replay_in_target": {str(m): replay(setup, model, state, target, r.tilts_deg, m) for m in substeps}}
 
 
 def main() -> None:
