@@ -90,6 +90,35 @@ def time_to_sure(times, probs, level: float = SURE) -> float | None:
     return float(times[0 if not len(below) else below[-1] + 1])
 
 
+def routing(setup, particles: np.ndarray) -> dict:
+    """Where a pipe scene's liquid went, from its true ``particles`` (T, N, 3), world frame.
+
+    Shares of the liquid that entered the inlet (inside the top 6 cm of the vertical stem at some
+    step) and that end in ``left_bowl``, ``right_bowl`` (inside the cylinder of the bowl's rim)
+    and ``elsewhere``. Reads the truth: for scoring and benchmarks only, never the analysis.
+    """
+    k = setup.index("pipe")
+    pipe = setup.objects[k].model
+    y0 = float(setup.poses_at(0.0)[k][1])
+    half = 0.5 * float(pipe.mesh.bounds[1][2] - pipe.mesh.bounds[0][2]) - pipe.wall     # inner half-width
+    top = y0 + float(pipe.anchors["inlet"][1])
+    p = particles
+    stem = (np.abs(p[..., 0]) < half) & (np.abs(p[..., 2]) < half) & (p[..., 1] < top) & (p[..., 1] > top - 0.06)
+    out = {"particles": int(p.shape[1]), "entered_inlet": float(stem.any(0).mean())}
+    last = p[-1]
+    anywhere = np.zeros(len(last), bool)
+    for name in ("left_bowl", "right_bowl"):
+        j = setup.index(name)
+        centre = setup.poses_at(0.0)[j][:3]
+        lo, hi = setup.objects[j].model.mesh.bounds
+        inside = (np.hypot(last[:, 0] - centre[0], last[:, 2] - centre[2]) < 0.5 * float(hi[0] - lo[0])) & (
+            last[:, 1] < centre[1] + float(hi[1]))
+        out[name] = float(inside.mean())
+        anywhere |= inside
+    out["elsewhere"] = float(1.0 - anywhere.mean())
+    return out
+
+
 def configure(p) -> None:
     add_common(p, out="eval-blockage")
     p.add_argument("--trackers", nargs="+", default=list(MODES), choices=["open_loop", "warp_field", "map_filter"],

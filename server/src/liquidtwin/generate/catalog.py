@@ -34,6 +34,15 @@ TABLE = "table"
 QUICK_FILL = 0.2
 #: How far beyond a tilted cup's lip its stream lands 10–15 cm lower, m (measured on generated pours at both speeds).
 STREAM_REACH = 0.085
+#: The pipe scene's junction: 4.5 cm square ducts, legs 27.5 cm apart (over the two bowls).
+PIPE = {"inner": 0.045, "arm": 0.16}
+#: Gap between the pipe's leg openings and the taller bowl's rim, m.
+PIPE_CLEARANCE = 0.03
+#: The pipe's feeding cup: lip 3.5 cm beside the inlet's centre line and 3 cm above its top,
+#: tilted at twice the thesis pour's rate, 90 % full. Measured on generated pipe scenes (full
+#: and quick): 97–100 % of the liquid enters the inlet, and the flow backs up over a partial
+#: plug (``bench/pipe_scene.py``).
+PIPE_LIP_X, PIPE_LIP_ABOVE, PIPE_POUR_SPEED, PIPE_FILL = 0.035, 0.03, 2.0, 0.9
 
 
 @dataclass(frozen=True, eq=False)
@@ -205,26 +214,32 @@ def _catching(rng, quick: bool) -> Setup:
 
 
 def _pipe(rng, quick: bool) -> Setup:
-    pipe = _item("pipe", "pipe_junction", mo.Static((0.0, 0.06, 0.0, 0.0, 0.0, 0.0, 1.0)), inner=0.045)
-    top = float(pipe.model.mesh.bounds[1][1]) + 0.06
+    """Thesis §7.4.3: a cup poured steadily into the top of an inverted T-junction held
+    above two bowls, one under each leg; the camera looks at the junction, the streams from its
+    legs and the bowls (the liquid inside the opaque pipe is hidden). A plug in a leg (the ``blockage`` effect) sends the liquid into the other
+    bowl (full), or lets through only what backs up over it (partial)."""
+    y_pipe = float(build("fruit_bowl").mesh.bounds[1][1]) + PIPE_CLEARANCE
+    pipe = _item("pipe", "pipe_junction", mo.Static((0.0, y_pipe, 0.0, 0.0, 0.0, 0.0, 1.0)), **PIPE)
+    leg = PIPE["arm"] - 0.5 * PIPE["inner"]          # leg centre lines at x = ±leg
+    left = _item("left_bowl", "bowl", mo.Static((-leg, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)), container=True)
+    right = _item("right_bowl", "fruit_bowl", mo.Static((leg, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)), container=True)
+    top = y_pipe + float(pipe.model.mesh.bounds[1][1])
     src_model = build("cup")
     lip_local = _lip(src_model)
-    # Lip beside the inlet so the stream lands in it; the cup starts beside the stem, below its top.
-    lip_world = np.array([STREAM_REACH, top - 0.03 + lip_local[1], 0.0])
-    speed = 2.0 if quick else 1.0
-    motion = mo.pour("hold", lip_local, lip_world, start=0.3, speed=speed)
+    lip_world = np.array([PIPE_LIP_X, top + PIPE_LIP_ABOVE, 0.0])
+    motion = mo.pour("hold", lip_local, lip_world, start=0.3, speed=PIPE_POUR_SPEED)
     source = SceneItem("source", "cup", {}, src_model, src_model.sdf(), motion, True)
-    volume = round(0.6 * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
+    volume = round(PIPE_FILL * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
     leak, _ = source_sites(0, src_model, volume)
 
     def blockage(fraction, extra):
-        leg = "left" if extra.get("leg", 0.0) < 0.5 else "right"
-        return 1, build("pipe_junction", inner=0.045, **{leg: "full" if fraction >= 0.95 else float(fraction)}).sdf()
+        side = "left" if extra.get("leg", 0.0) < 0.5 else "right"
+        return 1, build("pipe_junction", **PIPE, **{side: "full" if fraction >= 0.95 else float(fraction)}).sdf()
 
-    cam = _camera(rng, [0.0, 0.3, 0.85], [0.0, 0.22, 0.0], quick)
+    cam = _camera(rng, [0.0, 0.30, 0.62], [0.0, y_pipe - 0.02, 0.0], quick)
     duration = motion.end + (1.0 if quick else 2.5)
-    return Setup("pipe", (source, pipe, _table()), (("source", volume),), (cam,), duration, "pipe_feed",
-                 {"speed": speed}, leak_site=leak, blockage_site=blockage)
+    return Setup("pipe", (source, pipe, left, right, _table()), (("source", volume),), (cam,), duration,
+                 "pipe_feed", {"speed": PIPE_POUR_SPEED}, leak_site=leak, blockage_site=blockage)
 
 
 def _plate(rng, quick: bool) -> Setup:
