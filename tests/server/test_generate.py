@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from mcap.stream_reader import StreamReader
 
 from liquidtwin.generate import EFFECTS, generate
@@ -155,3 +156,22 @@ def test_cli_needs_scene_and_out():
     run = subprocess.run([sys.executable, "-m", "liquidtwin.cli", "generate", "--scene", "pour_dump"],
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and "--out" in run.stderr
+
+
+def test_pipe_scene_cup_clears_the_pipe_all_along_its_pour():
+    # A cup that touches the junction pushes its liquid through the pipe's SDF, and then the
+    # blockage hypotheses (which differ only inside the pipe) diverge before any liquid
+    # reaches a plug. Cup vertices against the pipe's SDF, over the whole motion.
+    from liquidtwin.generate.catalog import build_setup
+    from liquidtwin.sim.sdf import min_sdf, quat_to_matrix
+    for quick in (False, True):
+        s = build_setup("pipe", np.random.default_rng(0), quick)
+        cup, pipe = s.objects[s.index("source")], s.objects[s.index("pipe")]
+        v = torch.as_tensor(np.asarray(cup.model.mesh.vertices), dtype=torch.float64)
+        gaps = []
+        for t in np.linspace(0.0, s.duration, 60):
+            poses = torch.as_tensor(s.poses_at(t), dtype=torch.float64)
+            q = poses[s.index("source")]
+            gaps.append(float(min_sdf(v @ quat_to_matrix(q[3:]).T + q[:3], [pipe.grid],
+                                      poses[s.index("pipe")][None]).min()))
+        assert min(gaps) > 0.01, (quick, min(gaps))

@@ -38,11 +38,11 @@ STREAM_REACH = 0.085
 PIPE = {"inner": 0.045, "arm": 0.16}
 #: Gap between the pipe's leg openings and the taller bowl's rim, m.
 PIPE_CLEARANCE = 0.03
-#: The pipe's feeding cup: lip 3.5 cm beside the inlet's centre line and 3 cm above its top,
-#: tilted at twice the thesis pour's rate, 90 % full. Measured on generated pipe scenes (full
-#: and quick): 97–100 % of the liquid enters the inlet, and the flow backs up over a partial
-#: plug (``bench/pipe_scene.py``).
-PIPE_LIP_X, PIPE_LIP_ABOVE, PIPE_POUR_SPEED, PIPE_FILL = 0.035, 0.03, 2.0, 0.9
+#: The pipe's feeding cup: lip 5 cm beside the inlet's centre line and 5 cm above its top (the
+#: cup's base then clears the crossbar below it by 1.7 cm), tilted at twice the thesis pour's
+#: rate, 90 % full, so that the flow backs up over a partial plug. Where its stream lands was
+#: measured on generated pipe scenes (``bench/pipe_scene.py``: the share entering the inlet).
+PIPE_LIP_X, PIPE_LIP_ABOVE, PIPE_POUR_SPEED, PIPE_FILL = 0.05, 0.05, 2.0, 0.9
 
 
 @dataclass(frozen=True, eq=False)
