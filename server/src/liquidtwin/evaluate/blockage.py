@@ -99,7 +99,8 @@ def routing(setup, particles: np.ndarray) -> dict:
     """
     k = setup.index("pipe")
     pipe = setup.objects[k].model
-    y0 = float(setup.poses_at(0.0)[k][1])
+    poses = setup.poses_at(0.0)                    # the pipe and the bowls are static
+    y0 = float(poses[k][1])
     half = 0.5 * float(pipe.mesh.bounds[1][2] - pipe.mesh.bounds[0][2]) - pipe.wall     # inner half-width
     top = y0 + float(pipe.anchors["inlet"][1])
     p = particles
@@ -109,7 +110,7 @@ def routing(setup, particles: np.ndarray) -> dict:
     anywhere = np.zeros(len(last), bool)
     for name in ("left_bowl", "right_bowl"):
         j = setup.index(name)
-        centre = setup.poses_at(0.0)[j][:3]
+        centre = poses[j][:3]
         lo, hi = setup.objects[j].model.mesh.bounds
         inside = (np.hypot(last[:, 0] - centre[0], last[:, 2] - centre[2]) < 0.5 * float(hi[0] - lo[0])) & (
             last[:, 1] < centre[1] + float(hi[1]))
@@ -142,7 +143,8 @@ def run(args) -> int:
         planted = truth["effect"]
         row = {"case": case.as_dict(), "recording": str(path), "planted": planted, "modes": {}}
         for mode in args.trackers:
-            post = infer_blockage(rec, tracking=mode, frames=args.frames, delta=delta, slack_px=slack)
+            post = infer_blockage(rec, tracking=mode, frames=args.frames, delta=delta, slack_px=slack,
+                                  batched=args.batched == "yes")
             k = post.names.index(case.truth)
             row["modes"][mode] = post.as_dict() | {
                 "correct": post.best == case.truth, "p_truth": float(post.probability[k]),
@@ -152,6 +154,7 @@ def run(args) -> int:
     text = format_table(results, args.trackers, args.quick, delta, slack)
     print(text)
     doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "delta": delta, "slack_px": slack,
+           "batched": args.batched == "yes",
            "frames": args.frames, "trackers": list(args.trackers), "table_text": text, "cases": results}
     right = {m: sum(r["modes"][m]["correct"] for r in results) for m in args.trackers}
     best = max(right, key=right.get)

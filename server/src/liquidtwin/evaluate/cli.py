@@ -67,6 +67,10 @@ def add_likelihood_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slack", type=float, default=None, metavar="PX",
                    help="a pixel's label agrees when the other mask has it within PX pixels, at 640x480 and scaled "
                         "with the image (default: 16, i.e. 8 px on quick 320x240 masks; 0: SPEC's exact pixels)")
+    p.add_argument("--batched", choices=("yes", "no"), default="yes",
+                   help="simulate the hypotheses together (yes) or one after another (no); the same physics, but "
+                        "each hypothesis of a batch runs at its own place, so float rounding (and then a chaotic "
+                        "stream) can differ between hypotheses that are otherwise identical")
 
 
 def likelihood_options(args) -> tuple[float, float]:

@@ -43,8 +43,6 @@ def configure(p) -> None:
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
     add_likelihood_options(p)
-    p.add_argument("--batched", choices=("yes", "no"), default="yes",
-                   help="simulate the hypotheses together (yes) or one after another (no); same numbers")
 
 
 def run(args) -> int:

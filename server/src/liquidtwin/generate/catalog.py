@@ -215,9 +215,10 @@ def _catching(rng, quick: bool) -> Setup:
 
 def _pipe(rng, quick: bool) -> Setup:
     """Thesis §7.4.3: a cup poured steadily into the top of an inverted T-junction held
-    above two bowls, one under each leg; the camera looks at the junction, the streams from its
-    legs and the bowls (the liquid inside the opaque pipe is hidden). A plug in a leg (the ``blockage`` effect) sends the liquid into the other
-    bowl (full), or lets through only what backs up over it (partial)."""
+    above two bowls, one under each leg; the camera looks at the junction, the streams from
+    its legs and the bowls (the liquid inside the opaque pipe is hidden). A plug in a leg
+    (the ``blockage`` effect) sends the liquid into the other bowl (full), or lets through
+    only what backs up over it (partial)."""
     y_pipe = float(build("fruit_bowl").mesh.bounds[1][1]) + PIPE_CLEARANCE
     pipe = _item("pipe", "pipe_junction", mo.Static((0.0, y_pipe, 0.0, 0.0, 0.0, 0.0, 1.0)), **PIPE)
     leg = PIPE["arm"] - 0.5 * PIPE["inner"]          # leg centre lines at x = ±leg
