@@ -1,7 +1,7 @@
 """Where does the pipe scene's liquid go? The routing of ``liquidtwin evaluate blockage``'s
 recordings, read from their truth sidecars (the true particles).
 
-    OMP_NUM_THREADS=1 python bench/pipe_scene.py [--quick] [--data DIR] [--seed N] [--jobs 2]
+    OMP_NUM_THREADS=1 python bench/pipe_scene.py [--quick] [--data DIR] [--seed N] [--partial F] [--jobs 2]
 
 For each of the five pipe recordings (one per true blockage, the benchmark's seeds; generated
 into ``--data`` when missing, as ``evaluate blockage`` does): the share of the liquid that
@@ -32,18 +32,21 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path("eval-data"), help="recordings (generated when missing)")
     ap.add_argument("--seed", type=int, default=0, help="base seed, as evaluate blockage --seed")
     ap.add_argument("--jobs", type=int, default=2, help="processes generating missing recordings")
+    ap.add_argument("--partial", type=float, default=None, metavar="F",
+                    help="a partial plug blocks the lower F of its leg (default: evaluate blockage's)")
     ap.add_argument("--out", type=Path, default=None, help="JSON results (default bench/results/pipe_scene_*.json)")
     args = ap.parse_args()
     from liquidtwin.evaluate.blockage import ensure_pipes, pipe_cases, routing
     from liquidtwin.generate.catalog import build_setup
-    cases = pipe_cases(quick=args.quick, base_seed=args.seed)
+    from liquidtwin.inference import PARTIAL
+    cases = pipe_cases(quick=args.quick, base_seed=args.seed, partial=PARTIAL if args.partial is None else args.partial)
     paths = ensure_pipes(cases, args.data, jobs=args.jobs)
     setup = build_setup("pipe", np.random.default_rng(0), args.quick)     # the seed only moves the camera
     rows = []
     for case, path in zip(cases, paths):
         particles = np.load(path.with_suffix(".truth.npz"))["particles"]
         row = {"bench": "pipe_scene", "recording": path.name, "truth": case.truth, "seed": case.seed,
-               "quick": bool(args.quick), **routing(setup, particles)}
+               "quick": bool(args.quick), "partial_plug": case.partial, **routing(setup, particles)}
         rows.append(emit(row))
     print(f"{'truth':<15}{'entered inlet':>15}{'left bowl':>11}{'right bowl':>12}{'elsewhere':>11}")
     for r in rows:

@@ -193,7 +193,18 @@ def test_bad_requests_fail_clearly(pour):
 
 def test_evaluate_rejects_a_bad_likelihood_before_generating(tmp_path):
     from liquidtwin.cli import main
-    for kind, opt, val in (("fill", "--slack", "-1"), ("blockage", "--delta", "0.4"), ("fill", "--slack", "nan")):
-        with pytest.raises(SystemExit, match="--delta/--slack"):
+    for kind, opt, val, says in (("fill", "--slack", "-1", "--delta/--slack"), ("blockage", "--delta", "0.4", "--delta/--slack"),
+                                 ("fill", "--slack", "nan", "--delta/--slack"), ("blockage", "--partial", "1", "--partial")):
+        with pytest.raises(SystemExit, match=says):
             main(["evaluate", kind, "--quick", opt, val, "--data", str(tmp_path / "d"), "--out", str(tmp_path / "o")])
     assert not (tmp_path / "d").exists()                  # nothing was generated
+
+
+def test_pipe_cases_plant_the_partial_plug_they_name():
+    from liquidtwin.evaluate.blockage import pipe_cases
+    cases = {c.truth: c for c in pipe_cases(quick=True, base_seed=7, partial=0.25)}
+    assert cases["left_partial"].effects() == [("blockage", 0.25, {"leg": 0.0})]
+    assert cases["right_full"].effects() == [("blockage", 1.0, {"leg": 1.0})] and cases["none"].effects() == []
+    # Recordings are cached by name: a partial plug of another height is another recording.
+    assert cases["left_partial"].name == "pipe-left_partial0.25-s8-q" and cases["none"].name == "pipe-none-s7-q"
+    assert pipe_cases(quick=True, base_seed=7, partial=0.5)[1].name != cases["left_partial"].name

@@ -2,8 +2,8 @@
 
 Five ``pipe`` recordings, one per true blockage (none, left/right × partial/full), each with
 its own seed (``base_seed + index``); the world's plug is planted with the generator's
-``blockage`` effect (``blockage=0.6:leg=left`` is the partial left plug: the same 60 % plug
-the hypotheses use; 1.0 closes the leg). Each recording is analysed blind by
+``blockage`` effect (``blockage=0.3:leg=left`` is the partial left plug: the same 30 % plug
+the hypotheses use, ``--partial``; 1.0 closes the leg). Each recording is analysed blind by
 :func:`liquidtwin.inference.infer_blockage` — the five hypotheses simulated together and
 scored with the δ-likelihood (SPEC §3, ``--slack`` px of slack) — open loop and warp-field tracked. Scoring reads
 the truth (``REC.truth.json``) only to mark the true hypothesis.
@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..inference.blockage import PARTIAL
 from .benchmark import generate_all
 from .cli import add_common, add_likelihood_options, likelihood_options, save_results
 
@@ -34,29 +35,31 @@ SURE = 0.99
 
 @dataclass(frozen=True)
 class PipeCase:
-    """One pipe recording with the true blockage ``truth`` (a key of inference.BLOCKAGES)."""
+    """One pipe recording with the true blockage ``truth`` (a key of inference.BLOCKAGES);
+    a partial plug blocks the lower ``partial`` of its leg's height."""
 
     truth: str
     seed: int
     quick: bool
+    partial: float = PARTIAL
 
     @property
     def name(self) -> str:
-        return f"pipe-{self.truth}-s{self.seed}-{'q' if self.quick else 'f'}"
+        plug = f"{self.partial:g}" if self.truth.endswith("partial") else ""
+        return f"pipe-{self.truth}{plug}-s{self.seed}-{'q' if self.quick else 'f'}"
 
     def effects(self) -> list:
         if self.truth == "none":
             return []
         leg, kind = self.truth.split("_")
-        from ..inference import PARTIAL
-        return [("blockage", PARTIAL if kind == "partial" else 1.0, {"leg": 0.0 if leg == "left" else 1.0})]
+        return [("blockage", self.partial if kind == "partial" else 1.0, {"leg": 0.0 if leg == "left" else 1.0})]
 
     def as_dict(self) -> dict:
         return asdict(self) | {"name": self.name, "effects": [list(e) for e in self.effects()]}
 
 
-def pipe_cases(*, quick: bool, base_seed: int = 0, truths=TRUTHS) -> list[PipeCase]:
-    return [PipeCase(t, base_seed + i, quick) for i, t in enumerate(truths)]
+def pipe_cases(*, quick: bool, base_seed: int = 0, truths=TRUTHS, partial: float = PARTIAL) -> list[PipeCase]:
+    return [PipeCase(t, base_seed + i, quick, partial) for i, t in enumerate(truths)]
 
 
 def _generate(args) -> str:
@@ -64,7 +67,7 @@ def _generate(args) -> str:
     import torch
     torch.set_num_threads(1)
     from ..generate import generate
-    case = PipeCase(case_d["truth"], case_d["seed"], case_d["quick"])
+    case = PipeCase(case_d["truth"], case_d["seed"], case_d["quick"], case_d["partial"])
     out = Path(data) / f"{case.name}.mcap"
     generate("pipe", out, effects=case.effects(), seed=case.seed, quick=case.quick)
     out.with_suffix(".case.json").write_text(json.dumps(case.as_dict(), indent=2) + "\n")
@@ -126,6 +129,9 @@ def configure(p) -> None:
                    metavar="T", help="scoring modes to compare (default: open_loop warp_field)")
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
+    p.add_argument("--partial", type=float, default=PARTIAL, metavar="F",
+                   help=f"a partial plug blocks the lower F of its leg's height, in the world and in the "
+                        f"hypotheses (default: {PARTIAL:g})")
     add_likelihood_options(p)
 
 
@@ -134,7 +140,9 @@ def run(args) -> int:
     from ..inference import infer_blockage
     from ..recordings import read_recording
     delta, slack = likelihood_options(args)
-    case_list = pipe_cases(quick=args.quick, base_seed=args.seed)
+    if not 0.0 < args.partial < 1.0:
+        raise SystemExit(f"--partial must be a blocked fraction in (0, 1), got {args.partial:g}")
+    case_list = pipe_cases(quick=args.quick, base_seed=args.seed, partial=args.partial)
     paths = ensure_pipes(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
     for case, path in tqdm(list(zip(case_list, paths)), desc="infer", unit="rec", disable=args.no_progress):
@@ -144,7 +152,7 @@ def run(args) -> int:
         row = {"case": case.as_dict(), "recording": str(path), "planted": planted, "modes": {}}
         for mode in args.trackers:
             post = infer_blockage(rec, tracking=mode, frames=args.frames, delta=delta, slack_px=slack,
-                                  batched=args.batched == "yes")
+                                  batched=args.batched == "yes", partial=args.partial)
             k = post.names.index(case.truth)
             row["modes"][mode] = post.as_dict() | {
                 "correct": post.best == case.truth, "p_truth": float(post.probability[k]),
@@ -153,7 +161,8 @@ def run(args) -> int:
         _save(args, {"kind": "blockage", "partial": True, "cases": results})        # survives an interruption
     text = format_table(results, args.trackers, args.quick, delta, slack)
     print(text)
-    doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "delta": delta, "slack_px": slack,
+    doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "partial_plug": args.partial,
+           "delta": delta, "slack_px": slack,
            "batched": args.batched == "yes",
            "frames": args.frames, "trackers": list(args.trackers), "table_text": text, "cases": results}
     right = {m: sum(r["modes"][m]["correct"] for r in results) for m in args.trackers}

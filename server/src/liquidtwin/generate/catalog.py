@@ -43,6 +43,11 @@ PIPE_CLEARANCE = 0.03
 #: rate, 90 % full, so that the flow backs up over a partial plug. Where its stream lands was
 #: measured on generated pipe scenes (``bench/pipe_scene.py``: the share entering the inlet).
 PIPE_LIP_X, PIPE_LIP_ABOVE, PIPE_POUR_SPEED, PIPE_FILL = 0.05, 0.05, 2.0, 0.9
+#: The pipe scene's camera: a robot's head camera 55 cm above the table and 45 cm in front,
+#: looking down (~50°) at a point 10 cm below the leg openings, so that it sees into both bowls
+#: (thesis §7.4.3: the legs "emptied into different bowls, both visible to the robot"). From
+#: 30 cm up (the first rig) it saw the bowls' outsides and only a sliver of their liquid.
+PIPE_EYE, PIPE_LOOK_BELOW = (0.0, 0.55, 0.45), 0.10
 
 
 @dataclass(frozen=True, eq=False)
@@ -218,7 +223,7 @@ def _pipe(rng, quick: bool) -> Setup:
     above two bowls, one under each leg; the camera looks at the junction, the streams from
     its legs and the bowls (the liquid inside the opaque pipe is hidden). A plug in a leg
     (the ``blockage`` effect) sends the liquid into the other bowl (full), or lets through
-    only what backs up over it (partial)."""
+    only what backs up over it (partial). The camera looks down into the bowls (``PIPE_EYE``)."""
     y_pipe = float(build("fruit_bowl").mesh.bounds[1][1]) + PIPE_CLEARANCE
     pipe = _item("pipe", "pipe_junction", mo.Static((0.0, y_pipe, 0.0, 0.0, 0.0, 0.0, 1.0)), **PIPE)
     leg = PIPE["arm"] - 0.5 * PIPE["inner"]          # leg centre lines at x = ±leg
@@ -237,7 +242,7 @@ def _pipe(rng, quick: bool) -> Setup:
         side = "left" if extra.get("leg", 0.0) < 0.5 else "right"
         return 1, build("pipe_junction", **PIPE, **{side: "full" if fraction >= 0.95 else float(fraction)}).sdf()
 
-    cam = _camera(rng, [0.0, 0.30, 0.62], [0.0, y_pipe - 0.02, 0.0], quick)
+    cam = _camera(rng, list(PIPE_EYE), [0.0, y_pipe - PIPE_LOOK_BELOW, 0.0], quick)
     duration = motion.end + (1.0 if quick else 2.5)
     return Setup("pipe", (source, pipe, left, right, _table()), (("source", volume),), (cam,), duration,
                  "pipe_feed", {"speed": PIPE_POUR_SPEED}, leak_site=leak, blockage_site=blockage)
