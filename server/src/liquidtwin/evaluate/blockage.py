@@ -159,7 +159,7 @@ def run(args) -> int:
                 "time_to_sure_s": time_to_sure(post.times_s, post.probability_over_time[:, k])}
         results.append(row)
         _save(args, {"kind": "blockage", "partial": True, "cases": results})        # survives an interruption
-    text = format_table(results, args.trackers, args.quick, delta, slack)
+    text = format_table(results, args.trackers, args.quick, delta, slack, args.partial)
     print(text)
     doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "partial_plug": args.partial,
            "delta": delta, "slack_px": slack,
@@ -178,7 +178,7 @@ def _save(args, doc: dict) -> Path:
     return save_results(args.out, doc)
 
 
-def format_table(results, modes, quick: bool, delta: float, slack: float) -> str:
+def format_table(results, modes, quick: bool, delta: float, slack: float, partial: float = PARTIAL) -> str:
     lines = []
     for mode in modes:
         lines.append(f"[{mode}]  final probability per hypothesis (* = truth)")
@@ -194,7 +194,8 @@ def format_table(results, modes, quick: bool, delta: float, slack: float) -> str
             lines.append(r["case"]["truth"].ljust(15) + "".join(cells) + ("yes" if m["correct"] else "no").rjust(9)
                          + ("never" if t is None else f"{t:.2f} s").rjust(12))
         lines.append(f"correct {ok}/{len(results)}")
-    lines.append(f"{'quick' if quick else 'full'} pipe scenes, delta = {delta}, slack {slack:g} px at 640x480; "
+    lines.append(f"{'quick' if quick else 'full'} pipe scenes, partial plug {partial:g} of the leg, delta = {delta}, "
+                 f"slack {slack:g} px at 640x480; "
                  f"t(p>=0.99): session time from which the truth keeps >= 0.99")
     return "\n".join(lines)
 
