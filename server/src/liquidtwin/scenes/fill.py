@@ -88,7 +88,11 @@ def fill_container(model: FluidModel, poses, index: int, obj: ObjectModel, *,
     R, t = rotation(poses[index]), poses[index, :3].to(torch.float64).numpy()
     rest_ml = model.particle_volume * 1e6
     steps = max(1, int(round(settle_s / model.dt)))
-    local = _take(sites, np.zeros((0, 3)), max(4, round(volume_ml / rest_ml)), model, obj.name)
+    # Settled liquid is denser than the rest lattice, so a full container may not take all of a
+    # first fill at rest spacing: place what fits and top up once it has settled.
+    local = _take(sites, np.zeros((0, 3)), max(4, round(volume_ml / rest_ml)), model, obj.name, fit=True)
+    if not len(local):
+        _take(sites, local, 1, model, obj.name)                  # raises: no room at all
     vel = np.zeros_like(local)                                   # world frame, m/s
     history, best = {}, None
     for iteration in range(1, max_iterations + 1):
@@ -106,7 +110,9 @@ def fill_container(model: FluidModel, poses, index: int, obj: ObjectModel, *,
         local = (state.x.detach().double().numpy()[mask] - t) @ R
         vel = state.v.detach().double().numpy()[mask]
         if want > count:        # top up: rest-lattice sites clear of the settled liquid
-            more = _take(sites, local, want - count, model, obj.name)
+            more = _take(sites, local, want - count, model, obj.name, fit=True)
+            if not len(more):   # no room left above the settled liquid: keep the best fill
+                break
             local, vel = np.concatenate([local, more]), np.concatenate([vel, np.zeros_like(more)])
         else:                   # skim the highest particles off
             keep = np.argsort(local[:, 1], kind="stable")[:want]
@@ -182,16 +188,17 @@ def _candidates(model: FluidModel, poses: torch.Tensor, index: int, obj: ObjectM
 
 
 def _take(sites: np.ndarray, liquid: np.ndarray, n: int, model: FluidModel,
-          name: str) -> np.ndarray:
+          name: str, *, fit: bool = False) -> np.ndarray:
     """The ``n`` lowest sites (K, 3) at least 0.9 spacing from every particle of ``liquid``
-    (L, 3), object frame, m."""
+    (L, 3), object frame, m; with ``fit`` as many as are free when fewer than ``n`` are (maybe
+    none), else too few free sites raise."""
     free = np.ones(len(sites), bool)
     if len(liquid):
         nb = find_neighbors(torch.as_tensor(sites), torch.as_tensor(liquid, dtype=torch.float64),
                             0.9 * model.spacing)
         free = (nb.counts() == 0).numpy()
     avail = sites[free]
-    if n > len(avail):
+    if n > len(avail) and not fit:
         ml = len(avail) * model.particle_volume * 1e6
         raise ValueError(f"cannot place {n} more particles in {name}: only {len(avail)} "
                          f"rest-lattice sites are free in and above its cavity, clear of the "
