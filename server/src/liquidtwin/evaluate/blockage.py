@@ -132,7 +132,7 @@ def configure(p) -> None:
     p.add_argument("--partial", type=float, default=PARTIAL, metavar="F",
                    help=f"a partial plug blocks the lower F of its leg's height, in the world and in the "
                         f"hypotheses (default: {PARTIAL:g})")
-    add_likelihood_options(p)
+    add_likelihood_options(p, batched="no")
 
 
 def run(args) -> int:

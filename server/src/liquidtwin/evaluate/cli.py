@@ -60,17 +60,18 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                         "generated recordings say 4). A model setting, not the world's truth")
 
 
-def add_likelihood_options(p: argparse.ArgumentParser) -> None:
-    """Options of the δ-likelihood that scores hypothesis banks (fill, blockage)."""
+def add_likelihood_options(p: argparse.ArgumentParser, *, batched: str = "yes") -> None:
+    """Options of the δ-likelihood that scores hypothesis banks (fill, blockage); ``batched``:
+    the default of ``--batched``."""
     p.add_argument("--delta", type=float, default=None, metavar="D",
                    help="pixel agreement probability of the likelihood (default: SPEC's 0.50001)")
     p.add_argument("--slack", type=float, default=None, metavar="PX",
                    help="a pixel's label agrees when the other mask has it within PX pixels, at 640x480 and scaled "
                         "with the image (default: 16, i.e. 8 px on quick 320x240 masks; 0: SPEC's exact pixels)")
-    p.add_argument("--batched", choices=("yes", "no"), default="yes",
+    p.add_argument("--batched", choices=("yes", "no"), default=batched,
                    help="simulate the hypotheses together (yes) or one after another (no); the same physics, but "
                         "each hypothesis of a batch runs at its own place, so float rounding (and then a chaotic "
-                        "stream) can differ between hypotheses that are otherwise identical")
+                        f"stream) can differ between hypotheses that are otherwise identical (default: {batched})")
 
 
 def likelihood_options(args) -> tuple[float, float]:

@@ -4,9 +4,17 @@ Five hypotheses of the junction's hidden plug (``geometry.pipe_junction``): none
 right leg partially blocked (the plug fills ``partial`` of the leg's height; liquid must rise
 over it) or fully blocked. Each is the scene with the junction's SDF rebuilt with that plug;
 all five start from the same settled fill (the recording's stated fill of its source), run
-together in one :class:`~.bank.Bank` under the tracked poses and are scored per mask frame
-with the δ-likelihood; the probability over time is kept. The analysis reads the recording
-only (the recorded spec describes the junction without any plug).
+under the tracked poses and are scored per mask frame with the δ-likelihood; the
+probability over time is kept. The analysis reads the recording only (the recorded spec
+describes the junction without any plug).
+
+By default the hypotheses run one after another (``batched=False``). They are the same
+scene until liquid reaches a plug, and run alone they stay bit-identical until then, so
+only what a plug does moves the posterior. A batch (:class:`~.bank.Bank`) runs each at its
+own place, 2 m apart, where float rounding differs; the cup's chaotic stream amplifies that
+within half a second, and on a "none" pipe scene the posterior of "none" had fallen to 0.03
+before any liquid reached a leg (``liquidtwin evaluate blockage --seed 10 --batched yes``).
+On two cores a batch is no faster (``bench/fill_inference.py``).
 """
 
 from __future__ import annotations
@@ -76,15 +84,16 @@ def blockage_hypotheses(spec: pb.SceneSpec, obj: str | None = None, names=tuple(
 def infer_blockage(rec, *, obj: str | None = None, hypotheses=tuple(BLOCKAGES), tracking: str = "warp_field",
                    partial: float = PARTIAL, progress: bool = False, camera: str | None = None,
                    frames: int | None = None, delta: float = DELTA, slack_px: float = SLACK_PX,
-                   batched: bool = True, offset_m: float = OFFSET_M) -> Posterior:
+                   batched: bool = False, offset_m: float = OFFSET_M) -> Posterior:
     """Posterior (and probability over time) over the junction's blockage given a recording.
 
     Args:
       rec: a Recording-like object (see :func:`~.fill.infer_fill`); its scene must hold a
         ``pipe_junction`` object (``obj``, default: the first one) and a filled source.
       hypotheses: names from BLOCKAGES (default all five).
-      tracking, camera, frames, delta, slack_px, batched, offset_m: as in :func:`~.fill.infer_fill`.
-      partial: blocked fraction of a partial plug (the catalogue's 0.6).
+      tracking, camera, frames, delta, slack_px, offset_m: as in :func:`~.fill.infer_fill`.
+      batched: all five in one simulation; default one after another (module doc).
+      partial: blocked fraction of a partial plug (default PARTIAL).
     """
     start = time.perf_counter()
     make_tracker(tracking)                      # a bad mode or slack fails before any simulation

@@ -120,7 +120,8 @@ def infer_fill(rec, *, container: str | None = None, fractions=FRACTIONS, tracki
       delta: P(pixel label agrees), SPEC §3.
       slack_px: a label agrees when the other mask has it within this many px (at 640×480,
         scaled with the image; :mod:`.likelihood`); 0: SPEC's exact pixel agreement.
-      batched: all hypotheses in one simulation (else one after another, same result).
+      batched: all hypotheses in one simulation (else one after another: the same physics, but
+        a batch runs each hypothesis at its own place, so float rounding differs between them).
       offset_m: spacing of the batched hypotheses along world x, m.
     Returns:
       :class:`Posterior` with names like "empty", "30 %".
