@@ -4,8 +4,8 @@ Five ``pipe`` recordings, one per true blockage (none, left/right × partial/ful
 its own seed (``base_seed + index``); the world's plug is planted with the generator's
 ``blockage`` effect (``blockage=0.3:leg=left`` is the partial left plug: the same 30 % plug
 the hypotheses use, ``--partial``; 1.0 closes the leg). Each recording is analysed blind by
-:func:`liquidtwin.inference.infer_blockage` — the five hypotheses simulated together and
-scored with the δ-likelihood (SPEC §3, ``--slack`` px of slack) — open loop and warp-field tracked. Scoring reads
+:func:`liquidtwin.inference.infer_blockage` — the five hypotheses simulated one after another
+(``--batched yes``: together) and scored with the δ-likelihood (SPEC §3, ``--slack`` px of slack) — open loop and warp-field tracked. Scoring reads
 the truth (``REC.truth.json``) only to mark the true hypothesis.
 
 Table: per recording and tracker, the final probability of every hypothesis (truth marked
