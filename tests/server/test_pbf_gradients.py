@@ -83,7 +83,10 @@ def _moving_pose(angle, dx):
 def test_one_step_gradcheck_params_positions_pose(backend):
     model, x, pose0 = _scene(backend)
     x0 = torch.as_tensor(x, dtype=torch.float64)
-    v0 = torch.randn_like(x0) * 0.05
+    # Seeded: finite differences are only valid away from a contact or neighbour switch. Over
+    # 200 unseeded-style draws one (seed 107) put a particle within eps of one; the torch and
+    # fused backends then fail alike, so it was the check's, not a gradient's, fault.
+    v0 = torch.randn(x0.shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 0.05
 
     def f(x, lv, lc, ls, angle, dx):
         m = model.with_params(lambda_v=lv, lambda_c=lc, lambda_s=ls)
