@@ -147,9 +147,7 @@ def run(args) -> int:
     results = []
     for case, path in tqdm(list(zip(case_list, paths)), desc="infer", unit="rec", disable=args.no_progress):
         rec = read_recording(path, images=False)
-        truth = json.loads(path.with_suffix(".truth.json").read_text())      # scoring only
-        planted = truth["effect"]
-        row = {"case": case.as_dict(), "recording": str(path), "planted": planted, "modes": {}}
+        row = {"case": case.as_dict(), "recording": str(path), "modes": {}}
         for mode in args.trackers:
             post = infer_blockage(rec, tracking=mode, frames=args.frames, delta=delta, slack_px=slack,
                                   batched=args.batched == "yes", partial=args.partial)
@@ -157,6 +155,7 @@ def run(args) -> int:
             row["modes"][mode] = post.as_dict() | {
                 "correct": post.best == case.truth, "p_truth": float(post.probability[k]),
                 "time_to_sure_s": time_to_sure(post.times_s, post.probability_over_time[:, k])}
+        row["planted"] = json.loads(path.with_suffix(".truth.json").read_text())["effect"]     # after the analyses
         results.append(row)
         _save(args, {"kind": "blockage", "partial": True, "cases": results})        # survives an interruption
     text = format_table(results, args.trackers, args.quick, delta, slack, args.partial)
