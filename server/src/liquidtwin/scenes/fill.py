@@ -90,9 +90,8 @@ def fill_container(model: FluidModel, poses, index: int, obj: ObjectModel, *,
     steps = max(1, int(round(settle_s / model.dt)))
     # Settled liquid is denser than the rest lattice, so a full container may not take all of a
     # first fill at rest spacing: place what fits and top up once it has settled.
-    local = _take(sites, np.zeros((0, 3)), max(4, round(volume_ml / rest_ml)), model, obj.name, fit=True)
-    if not len(local):
-        _take(sites, local, 1, model, obj.name)                  # raises: no room at all
+    wanted = max(4, round(volume_ml / rest_ml))
+    local = _take(sites, np.zeros((0, 3)), min(wanted, len(sites)) or wanted, model, obj.name)  # no room: raises
     vel = np.zeros_like(local)                                   # world frame, m/s
     history, best = {}, None
     for iteration in range(1, max_iterations + 1):
