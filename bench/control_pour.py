@@ -3,7 +3,8 @@ reached the bowl, what was spilled, and the wall time per MPC update.
 
     python bench/control_pour.py --fill 60 --targets 20 --step-size 0.5
 
-Quick pour_hold scene (cup → bowl, seed 0), the cup filled with ``--fill`` ml and settled.
+Quick pour_hold scene (cup → bowl, seed 0), the cup (``--cup-scale``: the pouring
+benchmark's, shrunk with the quick liquid) filled with ``--fill`` ml and settled.
 What is spilled is split into liquid that was in the bowl at some step and left it again
 (over the rim) and liquid that never got in. Appends one JSON record per target to
 bench/history.jsonl (``--no-history`` to skip).
@@ -19,6 +20,7 @@ import torch
 
 from _record import emit
 from liquidtwin.control.pour import run_pour
+from liquidtwin.evaluate.control import POUR_CUP_SCALE
 from liquidtwin.generate.catalog import build_setup
 from liquidtwin.generate.world import model_for
 from liquidtwin.scenes.fill import fill_container
@@ -38,11 +40,15 @@ def main() -> None:
     p.add_argument("--max-seconds", type=float, default=6.0, help="pour length limit, s (default: %(default)s)")
     p.add_argument("--trace", type=float, default=None, metavar="S",
                    help="every S seconds print the tilt and where the liquid is (cup, bowl, neither)")
+    p.add_argument("--cup-scale", type=float, default=POUR_CUP_SCALE,
+                   help="the cup's lengths × this (default: %(default).3f, as liquidtwin evaluate control "
+                        "--scene pouring; 1: the full-size cup)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--no-history", action="store_true")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
-    setup = build_setup("pour_hold", np.random.default_rng(0), quick=True, source="cup", target="bowl", fraction=0.9)
+    setup = build_setup("pour_hold", np.random.default_rng(0), quick=True, source="cup", target="bowl", fraction=0.9,
+                        source_scale=a.cup_scale)
     model = model_for(setup)
     k = setup.index("source")
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
@@ -75,7 +81,7 @@ def main() -> None:
         out = ~(held(model, last, src, setup.objects[src].model)[0] | held(model, last, dst, setup.objects[dst].model)[0])
         spilled_ids = last.ids[torch.as_tensor(out)].tolist()
         after = sum(1 for i in spilled_ids if i in seen["ever"])
-        rec = {"what": "mpc_pour", "particles": int(state.x.shape[0]), "target_ml": target,
+        rec = {"what": "mpc_pour", "particles": int(state.x.shape[0]), "cup_scale": a.cup_scale, "target_ml": target,
                "poured_ml": r.poured_ml, "left_ml": r.left_ml, "spilled_ml": r.spilled_ml,
                "spilled_after_entering_ml": after * mlpp, "spilled_never_entered_ml": (len(spilled_ids) - after) * mlpp,
                "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "approach_rate": a.approach_rate,

@@ -192,6 +192,9 @@ def test_command_line_errors_are_clear(tmp_path):
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--targets", "10",
             "--approach-rate", "-1", "--out", str(tmp_path / "out"))
     assert r.returncode != 0 and "--approach-rate: approach_rate must be a positive number" in r.stderr
+    r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--targets", "10",
+            "--cup-scale", "1.5", "--out", str(tmp_path / "out"))
+    assert r.returncode != 0 and "--cup-scale must be in (0, 1]" in r.stderr
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--served", "30",
             "--out", str(tmp_path / "out"))
     assert r.returncode != 0 and "--served runs the plate and catching MPCs" in r.stderr

@@ -200,3 +200,27 @@ def test_pipe_scene_camera_sees_into_both_bowls():
                             np.full(a.size, centre[1] + lo[1] + 0.015), centre[2] + rho.ravel() * np.sin(a.ravel())], 1)
             seen = visible(cam, torch.as_tensor(pts, dtype=torch.float32), grids, poses)
             assert float(seen.float().mean()) >= 0.8, (seed, name, float(seen.float().mean()))
+
+
+def test_pour_scene_source_scale_shrinks_the_cup_and_the_spec_rebuilds_it():
+    # The quick pouring benchmark shrinks the cup with its liquid (evaluate control --cup-scale):
+    # every length but the wall × s, so the capacity falls by ~s³; the scene spec carries the
+    # parameters, so a session rebuilds the very same cup; the seed's other draws stay put.
+    from liquidtwin.generate.catalog import build_setup
+    from liquidtwin.generate.generator import scene_spec
+    from liquidtwin.scenes.spec import scene_objects
+    full = build_setup("pour_hold", np.random.default_rng(3), True, source="cup", fraction=0.9)
+    s = 0.2 ** (1 / 3)
+    small = build_setup("pour_hold", np.random.default_rng(3), True, source="cup", fraction=0.9, source_scale=s)
+    cup_full, cup_small = (x.objects[x.index("source")].model for x in (full, small))
+    ratio = cup_small.capacity_ml / cup_full.capacity_ml
+    assert 0.17 < ratio < 0.2, ratio                 # s³ = 0.2, less a little: the wall keeps its 3 mm
+    assert small.objects[small.index("target")].model_name == full.objects[full.index("target")].model_name
+    np.testing.assert_allclose(small.poses_at(0.0)[small.index("target")], full.poses_at(0.0)[full.index("target")])
+    assert small.cameras[0].K.tolist() == full.cameras[0].K.tolist()     # same draw; it aims at the (lower) lip
+    rebuilt = dict((name, obj) for name, obj, _ in scene_objects(scene_spec(small)))["source"]
+    assert rebuilt.capacity_ml == pytest.approx(cup_small.capacity_ml, rel=1e-9)
+    assert full.objects[full.index("source")].params == {}      # scale 1: the catalogue's own cup
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="source_scale"):
+            build_setup("pour_hold", np.random.default_rng(3), True, source="cup", source_scale=bad)

@@ -12,8 +12,13 @@ shipped one or ``--policy FILE``) instead of the MPC and marks which motions it 
 on.
 
 ``--scene pouring``: the thesis's 11 pours (75–275 g in 20 g steps from a full-size cup)
-scaled to the quick cup: 60 ml in the cup, 11 asks from 10 to 30 ml in 2 ml steps
-(``control.pour``, the predicted-drain switch). Table: asked, in the bowl, error, spilled,
+scaled to a quick scene: 60 ml in the cup, 11 asks from 10 to 30 ml in 2 ml steps
+(``control.pour``, the predicted-drain switch). Quick scenes hold a fifth of the full scene's
+liquid (``QUICK_FILL``), so the cup shrinks with it (``--cup-scale``, default
+``QUICK_FILL``^⅓): 60 ml fill it as 300 ml fill the full-size cup (79 %), and the liquid
+starts to flow at the tilt it would at full size. In the full-size cup (``--cup-scale 1``,
+the benchmark before stop 28) 60 ml fill 16 %: nothing flows until ~85° of tilt, and then a
+third of the liquid leaves in one surge. Table: asked, in the bowl, error, spilled,
 s per update; ``pouring.png``. Target (issue 7): max error ≤ 5 g, mean ≤ 2 g, nothing
 spilled (thesis 11 g / 5 g) — the table also gives the errors relative to each ask, which is
 what carries over between cup sizes.
@@ -31,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..generate.catalog import QUICK_FILL
 from .cli import save_results
 
 HELP = ("control through SPNets, thesis §8.3.3: the plate scene (8 target bowls), catching (8 source "
@@ -63,6 +69,9 @@ def configure(p) -> None:
     p.add_argument("--approach-rate", type=float, default=None, metavar="RAD_S",
                    help="pouring: cap on the cup's forward tilt rate from 20 deg on, rad/s (default: none, "
                         "the full 2 rad/s; see control.pour)")
+    p.add_argument("--cup-scale", type=float, default=POUR_CUP_SCALE, metavar="S",
+                   help="pouring: the cup's lengths (not its 3 mm wall) × S, in (0, 1] (default: %(default).3f = "
+                        "QUICK_FILL^(1/3), so 60 ml fill it as 300 ml fill the full-size cup; 1: the full-size cup)")
     p.add_argument("--served", type=float, default=0.0, metavar="FPS",
                    help="plate / catching MPC: run the task as a session serves it — set on a session engine, "
                         "one Control per frame at FPS, a simulated robot moving the object to each Control's "
@@ -117,6 +126,8 @@ def run_motion(work) -> dict:
 
 
 POUR_FILL_ML = 60.0
+#: The quick pour's cup: the full-size cup's lengths (not its wall) × QUICK_FILL^(1/3) (module doc).
+POUR_CUP_SCALE = QUICK_FILL ** (1.0 / 3.0)
 POUR_TARGETS_ML = tuple(float(v) for v in range(10, 31, 2))
 
 
@@ -127,10 +138,10 @@ def run_pour_target(work) -> dict:
     from ..generate.catalog import build_setup
     from ..generate.world import model_for
     from ..scenes.fill import fill_container
-    target, seed, horizon, step_size, approach_rate = work
+    target, seed, horizon, step_size, approach_rate, cup_scale = work
     torch.set_num_threads(1)
     setup = build_setup("pour_hold", np.random.default_rng(seed), quick=True, source="cup", target="bowl",
-                        fraction=0.9)
+                        fraction=0.9, source_scale=cup_scale)
     model = model_for(setup)
     k = setup.index("source")
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
@@ -138,6 +149,7 @@ def run_pour_target(work) -> dict:
     r = run_pour(setup, model, state, target, rep.settled_ml / state.x.shape[0], horizon=horizon,
                  step_size=step_size, approach_rate=approach_rate)
     return {"target_ml": target, "particles": int(state.x.shape[0]), "cup_ml": rep.settled_ml,
+            "cup_capacity_ml": setup.objects[k].model.capacity_ml,
             "poured_ml": r.poured_ml, "error_ml": r.poured_ml - target, "spilled_ml": r.spilled_ml,
             "left_ml": r.left_ml, "switched_s": r.switched_s, "angles_deg": np.asarray(r.angles_deg).tolist(),
             "seconds": r.seconds, "update_s": r.update_s, "dt": float(model.dt)}
@@ -162,7 +174,9 @@ def run_pouring(args) -> int:
         check_approach_rate(args.approach_rate)
     except ControlError as e:
         raise SystemExit(f"--approach-rate: {e}") from None
-    work = [(t, args.seed, args.horizon, args.step_size, args.approach_rate) for t in targets]
+    if not 0.0 < args.cup_scale <= 1.0:
+        raise SystemExit(f"--cup-scale must be in (0, 1], got {args.cup_scale}")
+    work = [(t, args.seed, args.horizon, args.step_size, args.approach_rate, args.cup_scale) for t in targets]
     t0 = time.perf_counter()
     results = list(tqdm(map_jobs(run_pour_target, work, args.jobs), total=len(work), desc="pouring", unit="pour",
                         disable=args.no_progress))
@@ -170,6 +184,7 @@ def run_pouring(args) -> int:
     spilled = np.array([r["spilled_ml"] for r in results])
     rel = err / np.array(targets)
     doc = {"kind": "control", "scene": "pouring", "quick": True, "seed": args.seed, "fill_ml": POUR_FILL_ML,
+           "cup_scale": args.cup_scale, "cup_capacity_ml": results[0]["cup_capacity_ml"] if results else None,
            "horizon": args.horizon, "step_size": args.step_size, "approach_rate": args.approach_rate,
            "wall_s": time.perf_counter() - t0,
            "max_abs_error_ml": float(np.abs(err).max()), "mean_abs_error_ml": float(np.abs(err).mean()),

@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from ..camera import Camera
-from ..geometry import build
+from ..geometry import build, model_params
 from ..scenes import motions as mo
 from ..scenes import shapes
 from ..scenes.pour import floor_grid
@@ -168,8 +168,18 @@ TARGETS = ("bowl", "fruit_bowl", "dog_dish", "pan")
 FRACTIONS = (0.3, 0.6, 0.9)
 
 
+def scaled_params(model_name: str, scale: float) -> dict:
+    """Parameters of catalogue model ``model_name`` with every length but the wall × ``scale``
+    (the same shape, larger or smaller; walls keep their thickness so collisions stay as safe)."""
+    if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
+        raise ValueError(f"source_scale must be in (0, 1], got {scale}")
+    if scale == 1.0:
+        return {}
+    return {k: v * scale for k, v in model_params(model_name).items() if k != "wall"}
+
+
 def _pour(kind: str, rng, quick: bool, source: str | None = None, target: str | None = None,
-          fraction: float | None = None) -> Setup:
+          fraction: float | None = None, source_scale: float | None = None) -> Setup:
     # Always draw, then override: a chosen source leaves every other draw of the seed unchanged.
     source_name = str(rng.choice(SOURCES))
     target_name = str(rng.choice(TARGETS))
@@ -178,7 +188,8 @@ def _pour(kind: str, rng, quick: bool, source: str | None = None, target: str | 
     target_name = target or target_name
     fraction = drawn if fraction is None else float(fraction)
     target = _item("target", target_name, mo.Static(), container=True)
-    src_model = build(source_name)
+    src_params = scaled_params(source_name, 1.0 if source_scale is None else float(source_scale))
+    src_model = build(source_name, **src_params)
     t_lo, t_hi = target.model.cavity.bounds
     r_t = 0.5 * float(t_hi[0] - t_lo[0])
     rim_t = float(target.model.mesh.bounds[1][1])
@@ -186,7 +197,7 @@ def _pour(kind: str, rng, quick: bool, source: str | None = None, target: str | 
     lip_world = np.array([0.3 * r_t, rim_t + 0.015 + lip_local[1], 0.0])
     speed = 2.5 if quick else 1.0
     motion = mo.pour(kind, lip_local, lip_world, start=0.3 if quick else 0.5, speed=speed)
-    source = SceneItem("source", source_name, {}, src_model, src_model.sdf(), motion, True)
+    source = SceneItem("source", source_name, src_params, src_model, src_model.sdf(), motion, True)
     volume = round(fraction * src_model.capacity_ml * (QUICK_FILL if quick else 1.0), 1)
     leak, blockage = source_sites(0, src_model, volume)
     centre = np.array([0.05, 0.5 * (rim_t + lip_world[1]), 0.0])
@@ -304,7 +315,7 @@ SCENES: dict[str, Callable] = {
 
 
 #: What a pour scene lets a caller choose instead of the seed (evaluation benchmarks).
-CHOICES = {"source": SOURCES, "target": TARGETS, "fraction": None}
+CHOICES = {"source": SOURCES, "target": TARGETS, "fraction": None, "source_scale": None}
 
 
 def build_setup(name: str, rng: np.random.Generator, quick: bool = False, **choices) -> Setup:
@@ -312,7 +323,9 @@ def build_setup(name: str, rng: np.random.Generator, quick: bool = False, **choi
 
     ``choices`` (pour scenes only) fix what the seed would otherwise draw: ``source`` (one of
     ``SOURCES``), ``target`` (one of ``TARGETS``), ``fraction`` (initial fill of the source,
-    0 ≤ fraction ≤ 1, 0 = an empty source). Every other draw of the seed stays the same.
+    0 ≤ fraction ≤ 1, 0 = an empty source), ``source_scale`` (the source's lengths but its
+    wall × this, in (0, 1]: a smaller cup of the same shape). Every other draw of the seed
+    stays the same.
     """
     if name not in SCENES:
         raise ValueError(f"unknown scene {name!r}; known: {', '.join(SCENES)}")
