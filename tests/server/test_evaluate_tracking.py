@@ -136,3 +136,23 @@ def test_iterations_option_sets_the_analysing_models_solver(evaluated):
     for bad in (0, -2, 2.5, True):
         with pytest.raises(SystemExit, match="--iterations"):
             with_model_options(rec, bad)
+
+
+def test_cases_option_picks_a_range_that_keeps_each_case_and_its_seed():
+    # --cases A:B runs a later part of the benchmark with the very cases (and so the cached
+    # recordings) of a full run; N is the first N; nonsense is refused by the parser.
+    import argparse
+
+    from liquidtwin.evaluate.cli import case_range, selected_cases
+    full = cases(quick=True, trials=1)
+    args = argparse.Namespace(quick=True, trials=1, seed=0, cases=case_range("9:18"), frames=None)
+    assert [c.name for c in selected_cases(args)] == [c.name for c in full[9:18]]
+    assert all(c.source == "bottle" for c in full[9:18]) and all(c.source == "cup" for c in full[:9])
+    args.cases = case_range("2")
+    assert [c.seed for c in selected_cases(args)] == [full[0].seed, full[1].seed]
+    for bad in ("0", "5:5", "-1:3", "x", "3:"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            case_range(bad)
+    args.cases = case_range("40:50")
+    with pytest.raises(SystemExit, match="18 cases"):
+        selected_cases(args)

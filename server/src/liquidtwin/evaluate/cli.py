@@ -98,16 +98,32 @@ def with_model_options(rec, iterations: int | None):
     return rec
 
 
+CASES_HELP = ("only these cases: N (the first N) or A:B (cases A to B-1 of the benchmark's fixed order, "
+              "which keep their seeds and so their cached recordings)")
+
+
+def case_range(text: str) -> slice:
+    """argparse type of ``--cases``: ``N`` → the first N cases, ``A:B`` → cases A … B−1."""
+    try:
+        lo, hi = text.split(":", 1) if ":" in text else ("0", text)
+        lo, hi = int(lo or 0), int(hi)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"takes N or A:B (case numbers), got {text!r}") from None
+    if not 0 <= lo < hi:
+        raise argparse.ArgumentTypeError(f"takes N >= 1 or A:B with 0 <= A < B, got {text!r}")
+    return slice(lo, hi)
+
+
 def selected_cases(args, **kw) -> list:
-    """The benchmark cases the common options select (``--quick/--trials/--seed``, then
-    ``--cases N`` first ones); checks ``--cases`` and ``--frames``. ``kw`` go to ``cases``."""
+    """The benchmark cases the common options select (``--quick/--trials/--seed``, then the
+    ``--cases`` range, :func:`case_range`); checks ``--frames``. ``kw`` go to ``cases``."""
     from .benchmark import cases
     case_list = cases(quick=args.quick, trials=args.trials, base_seed=args.seed, **kw)
-    n = getattr(args, "cases", None)
-    if n is not None:
-        if n < 1:
-            raise SystemExit("--cases must be at least 1")
-        case_list = case_list[:n]
+    picked = getattr(args, "cases", None)
+    if picked is not None:
+        if picked.start >= len(case_list):
+            raise SystemExit(f"--cases: the benchmark has {len(case_list)} cases (0-{len(case_list) - 1})")
+        case_list = case_list[picked]
     frames = getattr(args, "frames", None)
     if frames is not None and frames < 2:
         raise SystemExit("--frames must be at least 2")

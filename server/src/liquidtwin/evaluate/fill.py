@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .benchmark import cases, ensure
-from .cli import (add_common, add_likelihood_options, add_model_options, likelihood_options, save_results,
-                  with_model_options)
+from .benchmark import ensure
+from .cli import (CASES_HELP, add_common, add_likelihood_options, add_model_options, case_range,
+                  likelihood_options, save_results, selected_cases, with_model_options)
 
 HELP = "initial-fill inference (empty/30/60/90 %) on the pouring benchmark (thesis Fig. 7.6)"
 FILLS = (0.0, 0.3, 0.6, 0.9)
@@ -39,7 +39,7 @@ def configure(p) -> None:
                    help="source containers (default: cup bottle)")
     p.add_argument("--kinds", nargs="+", default=["partial", "hold", "dump"], choices=["partial", "hold", "dump"],
                    metavar="K", help="pour trajectories (default: partial hold dump)")
-    p.add_argument("--cases", type=int, default=None, metavar="N", help="only the first N cases (smoke runs)")
+    p.add_argument("--cases", type=case_range, default=None, metavar="N|A:B", help=CASES_HELP)
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
     add_likelihood_options(p)
@@ -51,10 +51,7 @@ def run(args) -> int:
     from ..inference import fill_name, infer_fill
     from ..recordings import read_recording
     delta, slack = likelihood_options(args)
-    case_list = cases(quick=args.quick, trials=args.trials, sources=tuple(args.sources), fills=FILLS,
-                      kinds=tuple(args.kinds), base_seed=args.seed)
-    if args.cases is not None:
-        case_list = case_list[:max(1, args.cases)]
+    case_list = selected_cases(args, sources=tuple(args.sources), fills=FILLS, kinds=tuple(args.kinds))
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     scale = QUICK_FILL if args.quick else 1.0
     names = [fill_name(f) for f in FILLS]

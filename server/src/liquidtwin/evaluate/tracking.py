@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .benchmark import ensure
-from .cli import add_common, add_model_options, save_results, selected_cases, with_model_options
+from .cli import CASES_HELP, add_common, add_model_options, case_range, save_results, selected_cases, with_model_options
 from .replay import MODES, engine_for, replay
 
 HELP = "closed-loop tracking IOU per tracker on the pouring benchmark (thesis Fig. 7.5)"
@@ -40,7 +40,7 @@ def configure(p) -> None:
     add_model_options(p)
     p.add_argument("--trackers", nargs="+", default=list(TRACKERS), choices=list(MODES), metavar="T",
                    help=f"trackers to compare, from {', '.join(MODES)} (default: all)")
-    p.add_argument("--cases", type=int, default=None, metavar="N", help="only the first N cases (smoke runs)")
+    p.add_argument("--cases", type=case_range, default=None, metavar="N|A:B", help=CASES_HELP)
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
     p.add_argument("--min-px", type=int, default=50, metavar="PX",

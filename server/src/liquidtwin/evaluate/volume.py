@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .benchmark import ensure
-from .cli import add_common, save_results, selected_cases
+from .cli import CASES_HELP, add_common, case_range, save_results, selected_cases
 from .replay import MODES, engine_for, replay
 
 HELP = "volume estimates (particle count per tracker, model-based from masks) vs truth, RMSE ml (SPEC §5)"
@@ -44,7 +44,7 @@ def configure(p) -> None:
     p.add_argument("--trackers", nargs="+", default=list(TRACKERS), choices=list(MODES), metavar="T",
                    help=f"trackers whose particle-count volume is scored, from {', '.join(MODES)} "
                         f"(default: {' '.join(TRACKERS)})")
-    p.add_argument("--cases", type=int, default=None, metavar="N", help="only the first N cases (smoke runs)")
+    p.add_argument("--cases", type=case_range, default=None, metavar="N|A:B", help=CASES_HELP)
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
 
