@@ -28,7 +28,7 @@ from ..sensors import MaskNoise, PoseNoise, RGBParams, corrupt_mask, dropped_fra
 from . import catalog
 from .effects import EFFECTS, Effect, sample_effect
 from .observe import liquid_mask, object_labels, particle_radius
-from .world import MODEL_ITERATIONS, build_world, initial_state, simulate
+from .world import build_world, initial_state, model_iterations, simulate
 
 #: Stamps start here (2026-01-01T00:00:00Z) so recordings look like real logs.
 START_NS = 1_767_225_600_000_000_000
@@ -75,7 +75,7 @@ def scene_spec(setup, session_id: str = "generated") -> pb.SceneSpec:
     spec.header.session_id = session_id
     spec.simulation.h = setup.h
     spec.simulation.dt = setup.dt
-    spec.simulation.iterations = MODEL_ITERATIONS
+    spec.simulation.iterations = model_iterations(setup)
     spec.simulation.spacing = 0.55 * setup.h
     for k, v in setup.motion_params.items():
         spec.motion_params[k] = float(v)

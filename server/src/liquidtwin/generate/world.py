@@ -17,21 +17,47 @@ import torch
 from tqdm.auto import tqdm
 
 from ..scenes.fill import fill_container
-from ..sim import (FluidModel, FluidState, QuadraticDrag, SDFGrid, UniformAcceleration, WallAdhesion, carve, make_state,
-                   solidify, step)
-from .effects import Effect
+from ..sim import (FluidModel, FluidState, QuadraticDrag, SDFGrid, UniformAcceleration, WallAdhesion, carve,
+                   iterations_for_depth, make_state, solidify, step)
 
-#: liquidtwin's model settings for generated scenes (what a server would use).
+#: liquidtwin's model settings for generated scenes (what a server would use): at least this
+#: many solver iterations, more for deep liquid (:func:`model_iterations`).
 MODEL_ITERATIONS = 4
 MODEL_RELAXATION = 4.0
-#: The world solves its constraints more thoroughly than the model.
-WORLD_ITERATIONS = 6
+#: The world solves its constraints more thoroughly than the model: this many more iterations.
+WORLD_EXTRA_ITERATIONS = 2
+
+
+#: The fullest a benchmark fills a container (share of its capacity; × QUICK_FILL in quick scenes).
+FULLEST = 0.9
+
+
+def fill_depth(setup) -> float:
+    """How deep (m, upright, flat surface) the liquid of ``setup``'s filled
+    containers may be: each filled to :data:`FULLEST` of its capacity (× QUICK_FILL in quick
+    scenes), or to its stated fill when that is more. Not the stated fill alone: the solver
+    settings a recording states must not tell its analysis how full the source was."""
+    from .catalog import QUICK_FILL
+    depth = 0.0
+    for name, ml in setup.fills:
+        obj = setup.objects[setup.index(name)].model
+        most = max(float(ml), FULLEST * obj.capacity_ml * (QUICK_FILL if setup.quick else 1.0))
+        depth = max(depth, obj.height_for_volume(min(most, obj.capacity_ml)) - obj.floor_height)
+    return depth
+
+
+def model_iterations(setup) -> int:
+    """Solver iterations of liquidtwin's model of ``setup``: :data:`MODEL_ITERATIONS`, or enough
+    to hold its deepest liquid (:func:`fill_depth`) at rest (``sim.iterations_for_depth``:
+    a 90 % full-size cup gets 6, a 90 % bottle 10)."""
+    return iterations_for_depth(fill_depth(setup), 0.55 * setup.h, least=MODEL_ITERATIONS)
 
 
 def model_for(setup) -> FluidModel:
     """liquidtwin's own model of a catalogue scene ``setup``: its objects, h and dt, the
-    model's solver settings and default fluid parameters (what a server would run)."""
-    return FluidModel.create(setup.h, dt=setup.dt, iterations=MODEL_ITERATIONS, relaxation=MODEL_RELAXATION,
+    model's solver settings (:func:`model_iterations`) and default fluid parameters (what a
+    server would run)."""
+    return FluidModel.create(setup.h, dt=setup.dt, iterations=model_iterations(setup), relaxation=MODEL_RELAXATION,
                              objects=[o.grid for o in setup.objects])
 
 
@@ -69,10 +95,10 @@ def world_params(rng: np.random.Generator, defaults: dict) -> dict:
 
 def build_world(setup, effects, rng: np.random.Generator) -> World:
     """The world model for a scene ``setup`` (``generate.catalog.Setup``) and its hidden
-    ``effects`` (a sequence of :class:`Effect`, usually zero or one)."""
+    ``effects`` (a sequence of :class:`~.effects.Effect`, usually zero or one)."""
     objects = [o.grid for o in setup.objects]
-    base = FluidModel.create(setup.h, dt=setup.dt, iterations=WORLD_ITERATIONS, relaxation=MODEL_RELAXATION,
-                             objects=objects)
+    base = FluidModel.create(setup.h, dt=setup.dt, iterations=model_iterations(setup) + WORLD_EXTRA_ITERATIONS,
+                             relaxation=MODEL_RELAXATION, objects=objects)
     params = world_params(rng, base.params.as_dict())
     settle_params = dict(params)      # the fill settles without the effect's physics
     terms = []
