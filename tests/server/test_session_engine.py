@@ -243,3 +243,28 @@ def test_cuda_without_cuda_is_infeasible(rec):
     with pytest.raises(EngineError) as err:
         SessionEngine.create(pb.SessionSpec(scene=rec.spec), device="cuda")
     assert err.value.code == pb.Error.INFEASIBLE and "CUDA" in str(err.value)
+
+
+def test_a_fill_too_deep_for_the_solver_iterations_warns():
+    # Liquid deeper than ~3 rest spacings per solver iteration boils at rest (test_physics);
+    # a session told to run such a scene says so and how many iterations would hold it.
+    import warnings
+
+    from liquidtwin.generate.catalog import build_setup
+    from liquidtwin.generate.generator import scene_spec
+    from liquidtwin.session._build import build_scene
+    setup = build_setup("pour_hold", np.random.default_rng(0), False, source="cup", fraction=0.9)
+    spec = scene_spec(setup)
+    src = next(o for o in spec.objects if o.name == "source")
+    src.params.update({"radius": 0.02, "bottom_radius": 0.016, "height": 0.11})   # narrow: ~1k particles
+    del spec.fills[:]
+    spec.fills.add(container="source", fraction=0.9)
+    for iterations, warns in ((4, True), (6, False)):
+        spec.simulation.iterations = iterations
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            build_scene(pb.SessionSpec(scene=spec))
+        said = [str(w.message) for w in caught if "solver iterations" in str(w.message)]
+        assert bool(said) == warns, (iterations, said)
+        if warns:
+            assert "iterations >= 6" in said[0] and "'source'" in said[0]

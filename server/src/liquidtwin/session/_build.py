@@ -10,6 +10,7 @@ settled with :func:`liquidtwin.scenes.fill.fill_container`, as the generator fil
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +22,7 @@ from ..geometry import MeshError, ObjectModel
 from ..scenes.fill import fill_container
 from ..scenes.pour import floor_grid
 from ..scenes.spec import TABLE_MODEL, SpecError, scene_objects, simulation_settings
-from ..sim import FluidModel, FluidState, make_state
+from ..sim import FluidModel, FluidState, iterations_for_depth, make_state
 from .errors import BAD_REQUEST, INFEASIBLE, EngineError
 
 #: Simulated settling time of a fill, s (the generator's quick scenes use the same).
@@ -130,6 +131,11 @@ def _fill(model, scene, names, objects, poses, progress) -> tuple[FluidState, di
             s, report = fill_container(model, tp, k, objects[k], settle_s=SETTLE_S, progress=progress, **amount)
         except ValueError as exc:
             raise EngineError(INFEASIBLE, f"cannot fill {f.container!r}: {exc}") from None
+        need = iterations_for_depth(report.height_m - objects[k].floor_height, model.spacing)
+        if model.iterations < need:
+            warnings.warn(f"{f.container!r}: its liquid is {100 * (report.height_m - objects[k].floor_height):.1f} cm "
+                          f"deep, more than {model.iterations} solver iterations hold at rest (it will bounce and "
+                          f"boil over); scene.simulation.iterations >= {need} holds it", RuntimeWarning, stacklevel=2)
         xs, vs = s.by_id()
         x.append(xs)
         v.append(vs)
