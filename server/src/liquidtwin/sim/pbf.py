@@ -106,10 +106,12 @@ class FluidState:
 
 #: Liquid this many rest spacings deep per solver iteration stays at rest (relaxation 4, dt
 #: 1/120 s, h 1.1 cm, settled in its container); deeper liquid bounces and boils over, because
-#: the pressure solve spreads its correction a few spacings per iteration. Measured: a cup
-#: filled 16 spacings deep boils at 4 iterations (mean speed 0.37 m/s, 17 % of the liquid lost)
-#: and rests at 6 (0.004 m/s); a bottle 30 deep boils at 6, stirs at 8 (~0.09 m/s), rests at
-#: 10 (0.01 m/s); 11.5 deep rests at 4 and 20 deep at 7 (tests/server/test_physics.py).
+#: the pressure solve spreads its correction a few spacings per iteration. Measured: a narrow
+#: cup filled 16 spacings deep boils at 4 iterations (mean speed 0.37 m/s, its measured volume
+#: 17 % off after 1 s) and rests at 6 (0.004 m/s; tests/server/test_physics.py); in the
+#: generator's full scenes (uncommitted diagnostic, the README's "Solver iterations and deep
+#: liquid") a bottle 30 deep boils at 6, stirs at 8 (~0.09 m/s), rests at 10 (0.01 m/s), and
+#: liquid 11.5 deep rests at 4, 20 deep at 7. Other h, dt or relaxation were not measured.
 LAYERS_PER_ITERATION = 3.0
 
 
