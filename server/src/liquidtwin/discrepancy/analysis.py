@@ -35,6 +35,7 @@ from .episode import load_episode
 from .evidence import evidence
 from .corrections import correction_evidence, fit_learned, pooled, tracker_corrections
 from .model import CANDIDATES, Extension, learned_params
+from .parallel import Workers
 from .residuals import MIN_CELLS, cell_metrics, coarse, pixel_iou
 from .rollout import Simulator
 
@@ -59,7 +60,8 @@ class Options:
     the library to try; block_s: time-block length of the split, s; calibrate: fit λ_v, λ_c
     of the base first; null_runs: base-model realisations for the null (0: no null — then
     nothing is declared); top: how many best candidates are checked against the null;
-    bootstrap: resamples for the intervals; seed: of the null realisations and resampling."""
+    bootstrap: resamples for the intervals; seed: of the null realisations and resampling;
+    jobs: processes that run the model evaluations (``parallel``; the same report as 1)."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -69,6 +71,7 @@ class Options:
     top: int = 3
     bootstrap: int = 2000
     seed: int = 0
+    jobs: int = 1
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -78,6 +81,8 @@ class Options:
             raise ValueError(f"block_s must be > 0 s, got {self.block_s}")
         if self.null_runs < 0 or self.top < 1 or self.bootstrap < 100:
             raise ValueError("null_runs must be >= 0, top >= 1, bootstrap >= 100")
+        if isinstance(self.jobs, bool) or not isinstance(self.jobs, int) or self.jobs < 1:
+            raise ValueError(f"jobs must be a whole number >= 1, got {self.jobs!r}")
 
 
 @dataclass
@@ -98,11 +103,12 @@ class _Evaluator:
     """Renders extensions on every episode once (cached: coarse cells + pixel IOU vs the
     recording) and scores them against any set of observed cells."""
 
-    def __init__(self, sims, bar):
+    def __init__(self, sims, bar=None):
         self.sims, self.bar = sims, bar
         self._cells: dict = {}
         self._iou: dict = {}
         self._traj: dict = {}
+        self._fresh: dict = {}
         self.evaluations = 0
         self.frames = [None] * len(sims)
 
@@ -111,6 +117,27 @@ class _Evaluator:
         self.frames = list(frames)
         self._cells.clear()
         self._iou.clear()
+
+    # Cache entries {key: (cells, iou)}, exchanged with worker processes (``parallel``).
+    def entries(self, name: str) -> dict:
+        """The cached evaluations of candidate ``name``."""
+        return {k: (self._cells[k], self._iou[k]) for k in self._cells if k[0] == name}
+
+    def preload(self, entries: dict) -> None:
+        for k, (c, i) in entries.items():
+            self._cells[k], self._iou[k] = c, i
+
+    def merge(self, entries: dict) -> None:
+        """Evaluations made elsewhere: cached here and counted."""
+        self.preload(entries)
+        self.evaluations += len(entries)
+        if self.bar is not None:
+            self.bar.update(len(entries))
+
+    def take_fresh(self) -> dict:
+        """The evaluations made here since the last call."""
+        out, self._fresh = self._fresh, {}
+        return out
 
     def _trajectories(self, ext: Extension):
         phys = ext if not LIBRARY.get(ext.name) or not LIBRARY[ext.name].observation else Extension("none", {}, ext.base)
@@ -129,8 +156,10 @@ class _Evaluator:
             self._cells[k] = [coarse(m) for m in masks]
             self._iou[k] = [pixel_iou(m, s.ep.masks if f is None else s.ep.masks[f])
                             for m, s, f in zip(masks, self.sims, self.frames)]
+            self._fresh[k] = (self._cells[k], self._iou[k])
             self.evaluations += 1
-            self.bar.update()
+            if self.bar is not None:
+                self.bar.update()
         return self._cells[k]
 
     def iou(self, ext: Extension) -> list:
@@ -231,8 +260,25 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
               for e, c in zip(eps, ev.cells(Extension()))]
     data, split = _split(eps, opt.block_s, frames)
     ev.restrict(frames)
-    rng = np.random.default_rng(opt.seed)
+    pool = Workers(ev, eps, frames, opt.jobs) if opt.jobs > 1 else None
     timing["build"] = time.perf_counter() - t0
+    try:
+        report = _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar)
+    finally:
+        if pool is not None:
+            pool.close()
+        bar.close()
+    report["timing_s"] = {**{k: round(v, 2) for k, v in timing.items()}, "total": round(time.perf_counter() - t0, 2)}
+    base, chosen = report.pop("_base"), report.pop("_chosen")
+    if out is not None:
+        from .report import write_report
+        write_report(report, out, eps, ev.cells(base), ev.cells(chosen), data.cells)
+    return report
+
+
+def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
+    """Calibrate, measure, fit, rank and check against the null (module doc, 2–5)."""
+    rng = np.random.default_rng(opt.seed)
 
     # 1. calibrate the base
     t = time.perf_counter()
@@ -242,8 +288,10 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
         defaults = {"lambda_v": float(sims[0].model.params.lambda_v), "lambda_c": float(sims[0].model.params.lambda_c)}
         best = ev.fit_loss(base, data)
         for key in ("lambda_v", "lambda_c"):
-            for f in CALIBRATION_FACTORS:
-                trial = Extension("none", {}, {**base.base, key: defaults[key] * f})
+            trials = [Extension("none", {}, {**base.base, key: defaults[key] * f}) for f in CALIBRATION_FACTORS]
+            if pool is not None:
+                pool.draw(trials)
+            for trial in trials:
                 loss = ev.fit_loss(trial, data)
                 calib.append({"base": trial.base, "fit_loss": loss})
                 if loss < best:
@@ -282,11 +330,15 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
                 "evidence": evid.get(name, {}), "_ext": ext}
 
     ranked = []
+    if pool is not None:
+        pool.fit([(name, data.cells) for name in opt.candidates], COARSE, base.base, data.fit)
     for name in opt.candidates:
         bar.set_postfix_str(name)
         ranked.append(scored(name, COARSE))
     # the best few by fitting loss gain are fitted finer (cached points are not re-simulated)
     ranked.sort(key=lambda c: c["fit_loss"])
+    if pool is not None:
+        pool.fit([(c["name"], data.cells) for c in ranked[: opt.top]], FINE, base.base, data.fit)
     for i in range(min(opt.top, len(ranked))):
         bar.set_postfix_str(f"refine {ranked[i]['name']}")
         ranked[i] = scored(ranked[i]["name"], FINE)
@@ -296,13 +348,17 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
     # 4. the null
     t = time.perf_counter()
     null_base, null_cells = [], []
-    for run in range(opt.null_runs):
-        cells = _null_cells(sims, frames, base, run, opt.seed)
+    realisations = (pool.null_cells(opt.null_runs, opt.seed, base) if pool is not None else
+                    [_null_cells(sims, frames, base, run, opt.seed) for run in range(opt.null_runs)])
+    for cells in realisations:
         nb, _ = _held(ev.losses(base, cells), data)
         null_base.append(float(nb.mean()))
         null_cells.append((cells, nb))
     residual_real = bool(null_base) and float(held_base.mean()) > RESIDUAL_FACTOR * max(null_base)
     if residual_real:              # only then is it worth asking which cause beats its null
+        if pool is not None:
+            pool.fit([(c["name"], cells) for c in ranked[: opt.top] for cells, _ in null_cells], FINE, base.base,
+                     data.fit)
         for c in ranked[: opt.top]:
             c["null_gains"] = []
             for cells, nb in null_cells:
@@ -311,7 +367,6 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
                 ne, _ = _held(ev.losses(ext, cells), data)
                 c["null_gains"].append(float((nb - ne).mean()))
     timing["null"] = time.perf_counter() - t
-    bar.close()
 
     decision, chosen = "none", base
     for c in ranked[: opt.top]:
@@ -356,14 +411,12 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
         "recordings": [str(e.path) for e in eps],
         "camera": eps[0].camera.name,
         "evaluations": ev.evaluations,
-        "timing_s": {**{k: round(v, 2) for k, v in timing.items()}, "total": round(time.perf_counter() - t0, 2)},
         "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in opt.__dict__.items()},
+        "_chosen": chosen,
+        "_base": base,
     }
     report["_series"] = {"t": [e.frame_t[f].tolist() for e, f in zip(eps, frames)], "base_iou": [x.tolist() for x in base_iou],
                          "extended_iou": [x.tolist() for x in ev.iou(chosen)],
                          "base_loss": [x.tolist() for x in base_loss],
                          "held": [h.tolist() for h in data.held]}
-    if out is not None:
-        from .report import write_report
-        write_report(report, out, eps, ev.cells(base), ev.cells(chosen), data.cells)
     return report

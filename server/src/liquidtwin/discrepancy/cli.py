@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from .model import CANDIDATES
@@ -25,6 +26,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--top", type=int, default=3, metavar="K", help="best candidates checked against the null (default 3)")
     p.add_argument("--no-calibrate", action="store_true", help="keep the base model's lambda_v, lambda_c as stated")
     p.add_argument("--seed", type=int, default=0, help="seed of the null realisations and the resampling")
+    p.add_argument("--jobs", type=int, default=min(4, os.cpu_count() or 1), metavar="N",
+                   help="processes running the model evaluations (default: this machine's cores, at most 4; "
+                        "the report is the same for any N)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -32,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
     from .analysis import Options, analyse
     try:
         opt = Options(camera=args.camera, candidates=tuple(args.candidates), block_s=args.block,
-                      calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed)
+                      calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
+                      jobs=args.jobs)
         report = analyse(args.recordings, args.out, options=opt, progress=not args.no_progress)
     except (ValueError, OSError) as exc:
         print(f"liquidtwin discrepancy: {exc}", file=sys.stderr)

@@ -1,0 +1,94 @@
+"""Model evaluations of a discrepancy analysis spread over worker processes.
+
+The analysis is a chain of searches (calibration, candidate fits, refinements, fits on the
+null realisations), and each search point is a rollout of the model plus its drawing; the
+searches of different candidates are independent. :class:`Workers` runs whole searches in
+``jobs`` spawned processes, each holding its own :class:`~.rollout.Simulator` of every
+episode, and hands back every evaluation a search made (coarse cells and pixel IOU per
+episode, keyed by the extension). The analysis merges them into its own cache and then runs
+its unchanged serial code, whose every evaluation is now a cache hit: the searches are
+deterministic, so they visit the same points, and the report is what the serial analysis
+gives (bit for bit when both run torch on one thread, as each worker does).
+
+What crosses between the processes is the analysis's own data (episodes, extensions, numpy
+arrays) through ``multiprocessing``'s local pipes; nothing is read from outside.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+
+#: The worker's evaluator (one per process, built by :func:`_init`).
+_EV = None
+
+
+def _init(eps, frames) -> None:
+    global _EV
+    import torch
+
+    from .analysis import _Evaluator
+    from .rollout import Simulator
+    torch.set_num_threads(1)
+    _EV = _Evaluator([Simulator(e) for e in eps], None)
+    _EV.restrict(frames)
+
+
+def _run(task) -> tuple:
+    """One task in a worker: ("cells", ext, seed) draws one extension; ("fit", name, rounds,
+    base, cells, fit, seed) runs ``fit_candidate`` against observed ``cells`` on the ``fit``
+    frames; ("null", run, seed_value, base, seed) draws one null realisation. ``seed``: cache
+    entries to start from. Returns (result, the entries computed here)."""
+    from .analysis import _Data, _null_cells
+    from .candidates import fit_candidate
+    ev = _EV
+    kind, *args, seed = task
+    ev.preload(seed)
+    result = None
+    if kind == "cells":
+        ev.cells(args[0])
+    elif kind == "fit":
+        name, rounds, base, cells, fit = args
+        data = _Data(cells, fit, None, None)
+        ext, _, _ = fit_candidate(name, lambda e: ev.fit_loss(e, data), base, rounds)
+        ev.cells(ext)
+    elif kind == "null":
+        run, seed_value, base = args
+        result = _null_cells(ev.sims, ev.frames, base, run, seed_value)
+    else:
+        raise ValueError(f"unknown task {kind!r}")
+    return result, ev.take_fresh()
+
+
+class Workers:
+    """``jobs`` spawned processes evaluating for the analysis's :class:`_Evaluator` ``ev``."""
+
+    def __init__(self, ev, eps, frames, jobs: int):
+        self.ev = ev
+        self.pool = mp.get_context("spawn").Pool(jobs, initializer=_init, initargs=(list(eps), list(frames)))
+
+    def _seed(self, name: str | None) -> dict:
+        return {} if name is None else self.ev.entries(name)
+
+    def _map(self, tasks: list) -> list:
+        out = []
+        for result, fresh in self.pool.imap(_run, tasks):
+            self.ev.merge(fresh)
+            out.append(result)
+        return out
+
+    def draw(self, exts) -> None:
+        """Evaluate every extension of ``exts`` (into the cache)."""
+        self._map([("cells", e, {}) for e in exts])
+
+    def fit(self, searches, rounds: int, base: dict, fit: list) -> None:
+        """Run the search of every (candidate name, observed cells) of ``searches`` on the
+        ``fit`` frames (into the cache)."""
+        self._map([("fit", n, rounds, dict(base), cells, fit, self._seed(n)) for n, cells in searches])
+
+    def null_cells(self, runs: int, seed: int, base) -> list:
+        """:func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1."""
+        return self._map([("null", r, seed, base, {}) for r in range(runs)])
+
+    def close(self) -> None:
+        self.pool.close()
+        self.pool.join()
