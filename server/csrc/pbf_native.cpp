@@ -103,24 +103,36 @@ std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius) {
   }
   cell_start.push_back(n);
   // The 27 neighbouring cells of every occupied cell (index into cell_key, -1 when empty),
-  // looked up once per cell rather than once per particle; dz, dy, dx order as before.
+  // looked up once per cell rather than once per particle; dz, dy, dx order as before. A
+  // neighbour's rank on an axis is the cell's own ±1 when that coordinate occurs, and the
+  // three cells of a row (dx = -1, 0, 1) have consecutive keys: one search per row.
   const int64_t nc = static_cast<int64_t>(cell_key.size());
   std::vector<int64_t> nbr(27 * nc);
+  auto near = [&](int ax, int64_t r, int64_t c, int d) -> int64_t {
+    const auto& u = uniq[ax];
+    const int64_t q = r + d;
+    return (q >= 0 && q < static_cast<int64_t>(u.size()) && u[q] == c + d) ? q : -1;
+  };
   at::parallel_for(0, nc, 64, [&](int64_t b, int64_t e) {
     for (int64_t ci = b; ci < e; ++ci) {
       const int64_t i = cell_start[ci];
+      const int64_t cx = cs[3 * i], cy = cs[3 * i + 1], cz = cs[3 * i + 2];
+      const int64_t rx0 = rank(0, cx), ry0 = rank(1, cy), rz0 = rank(2, cz);
+      const int64_t rxs[3] = {near(0, rx0, cx, -1), rx0, near(0, rx0, cx, 1)};
       int64_t* out = &nbr[27 * ci];
       for (int dz = -1; dz <= 1; ++dz) {
-        const int64_t rz = rank(2, cs[3 * i + 2] + dz);
-        for (int dy = -1; dy <= 1; ++dy) {
-          const int64_t ry = rz < 0 ? -1 : rank(1, cs[3 * i + 1] + dy);
-          for (int dx = -1; dx <= 1; ++dx, ++out) {
-            const int64_t rx = ry < 0 ? -1 : rank(0, cs[3 * i] + dx);
-            *out = -1;
-            if (rx < 0) continue;
-            const int64_t k = rx + u0 * (ry + u1 * rz);
-            auto it = std::lower_bound(cell_key.begin(), cell_key.end(), k);
-            if (it != cell_key.end() && *it == k) *out = it - cell_key.begin();
+        const int64_t rz = near(2, rz0, cz, dz);
+        for (int dy = -1; dy <= 1; ++dy, out += 3) {
+          out[0] = out[1] = out[2] = -1;
+          const int64_t ry = rz < 0 ? -1 : near(1, ry0, cy, dy);
+          if (ry < 0) continue;
+          const int64_t row = u0 * (ry + u1 * rz);
+          auto it = std::lower_bound(cell_key.begin(), cell_key.end(), row + (rxs[0] >= 0 ? rxs[0] : rx0));
+          for (int dx = 0; dx < 3; ++dx) {
+            if (rxs[dx] < 0) continue;
+            const int64_t k = row + rxs[dx];
+            while (it != cell_key.end() && *it < k) ++it;
+            if (it != cell_key.end() && *it == k) out[dx] = it - cell_key.begin();
           }
         }
       }
@@ -139,16 +151,30 @@ std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius) {
       }
     }
   };
+  // One distance pass: each block of points lists its neighbours into its own buffer, then the
+  // buffers are concatenated in block order (the same lists whatever the thread count).
   auto row_ptr_t = torch::zeros({n + 1}, torch::kInt64);
   int64_t* row_ptr = row_ptr_t.data_ptr<int64_t>();
-  at::parallel_for(0, n, 64, [&](int64_t b, int64_t e) {
-    for (int64_t i = b; i < e; ++i) { int64_t cnt = 0; visit(i, [&](int64_t) { ++cnt; }); row_ptr[i + 1] = cnt; }
+  constexpr int64_t kBlock = 256;
+  const int64_t nblocks = (n + kBlock - 1) / kBlock;
+  std::vector<std::vector<int64_t>> found(nblocks);
+  at::parallel_for(0, nblocks, 1, [&](int64_t b, int64_t e) {
+    for (int64_t blk = b; blk < e; ++blk) {
+      auto& buf = found[blk];
+      buf.reserve(kBlock * 48);
+      for (int64_t i = blk * kBlock; i < std::min(n, (blk + 1) * kBlock); ++i) {
+        const size_t before = buf.size();
+        visit(i, [&](int64_t j) { buf.push_back(j); });
+        row_ptr[i + 1] = static_cast<int64_t>(buf.size() - before);
+      }
+    }
   });
   for (int64_t i = 0; i < n; ++i) row_ptr[i + 1] += row_ptr[i];
   auto col_t = torch::empty({row_ptr[n]}, torch::kInt64);
   int64_t* col = col_t.data_ptr<int64_t>();
-  at::parallel_for(0, n, 64, [&](int64_t b, int64_t e) {
-    for (int64_t i = b; i < e; ++i) { int64_t p = row_ptr[i]; visit(i, [&](int64_t j) { col[p++] = j; }); }
+  at::parallel_for(0, nblocks, 1, [&](int64_t b, int64_t e) {
+    for (int64_t blk = b; blk < e; ++blk)
+      std::copy(found[blk].begin(), found[blk].end(), col + row_ptr[blk * kBlock]);
   });
   return {order_t, row_ptr_t, col_t};
 }

@@ -45,6 +45,29 @@ def test_native_neighbors_match_brute_force():
     assert int(changes) + 1 == len(torch.unique(keys, dim=0))
 
 
+@pytest.mark.skipif(os.environ.get("LIQUIDTWIN_NO_NATIVE") == "1", reason="installed without the C++ extension on purpose")
+def test_native_neighbors_across_empty_cells_and_thread_counts():
+    """Clusters a cell or two apart on every axis (neighbour cells that do and do not exist,
+    as in a stream), against brute force; the same lists on 1 and 2 threads."""
+    g = torch.Generator().manual_seed(3)
+    r = 0.02
+    centres = torch.tensor([[a, b, c] for a in (0, 2, 3, 6) for b in (0, 2, 5) for c in (0, 1, 4)], dtype=torch.float64)
+    x = (centres[:, None, :] * r + torch.rand(len(centres), 40, 3, generator=g, dtype=torch.float64) * 1.6 * r).reshape(-1, 3)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = fused.sorted_neighbors(x, r)
+        torch.set_num_threads(2)
+        two = fused.sorted_neighbors(x, r)
+    finally:
+        torch.set_num_threads(threads)
+    assert all(torch.equal(a, b) for a, b in zip(one, two))
+    order, row_ptr, col = one
+    xs = x[order]
+    got = {(i, int(j)) for i in range(len(x)) for j in col[row_ptr[i]:row_ptr[i + 1]]}
+    assert got == _pairs(lt.brute_force_neighbors(xs, None, r))
+
+
 def test_single_particle_and_empty_queries():
     x = torch.zeros(1, 3)
     assert lt.find_neighbors(x, None, 0.1).num_pairs == 0
