@@ -28,7 +28,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the null realisations and the resampling")
     p.add_argument("--jobs", type=int, default=min(4, os.cpu_count() or 1), metavar="N",
                    help="processes running the model evaluations (default: this machine's cores, at most 4; "
-                        "the report is the same for any N)")
+                        "the workers run the serial searches, one torch thread each: the report is the one "
+                        "--jobs 1 gives on one thread)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
