@@ -5,7 +5,7 @@ the world (the truth sidecar; scoring only) and in liquidtwin's open-loop model 
 the recording's stated fill.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/fill_pour_share.py --seed 100 --kinds partial hold \
-        --data eval-data [--no-history]
+        --data eval-data [--full] [--no-history]
 
 Why: fill inference (``liquidtwin evaluate fill``) compares what each fill hypothesis pours
 with what the camera sees. When the world's jittered parameters and mild hidden effect keep
@@ -67,10 +67,11 @@ def main() -> None:
     p.add_argument("--sources", nargs="+", default=list(SOURCES), choices=SOURCES)
     p.add_argument("--data", type=Path, default=Path("eval-data"), help="recording cache (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=1, help="processes generating missing recordings")
+    p.add_argument("--full", action="store_true", help="the full scenes (default: quick)")
     p.add_argument("--no-history", action="store_true")
     a = p.parse_args()
     torch.set_num_threads(1)
-    case_list = cases(quick=True, trials=1, sources=tuple(a.sources), fills=(0.0,) + FILLS, kinds=tuple(a.kinds),
+    case_list = cases(quick=not a.full, trials=1, sources=tuple(a.sources), fills=(0.0,) + FILLS, kinds=tuple(a.kinds),
                       base_seed=a.seed)
     paths = ensure(case_list, a.data, jobs=a.jobs)
     print(f"{'case':28s} {'hidden effect':24s} {'poured: world':>13s} {'model':>6s} {'spilled: world':>15s} {'model':>6s}")
