@@ -19,8 +19,9 @@ def _comparable(report: dict) -> dict:
 def test_two_worker_processes_give_the_serial_report(tmp_path):
     path = record("time_offset", tmp_path)
     # a physics candidate (re-simulated in the workers) and an observation one (re-drawn); the
-    # planted offset makes the residual real, so the null fits run in the workers too
-    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, bootstrap=200, calibrate=False)
+    # calibration's trials run in the workers, and the planted offset makes the residual real,
+    # so the null fits run there too
+    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, bootstrap=200)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)           # as each worker: the same float rounding
     try:

@@ -61,7 +61,8 @@ class Options:
     of the base first; null_runs: base-model realisations for the null (0: no null — then
     nothing is declared); top: how many best candidates are checked against the null;
     bootstrap: resamples for the intervals; seed: of the null realisations and resampling;
-    jobs: processes that run the model evaluations (``parallel``; the same report as 1)."""
+    jobs: processes that run the model evaluations (``parallel``; the report of 1 job on one
+    torch thread)."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -262,11 +263,13 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
     ev.restrict(frames)
     pool = Workers(ev, eps, frames, opt.jobs) if opt.jobs > 1 else None
     timing["build"] = time.perf_counter() - t0
+    ok = False
     try:
         report = _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar)
+        ok = True
     finally:
         if pool is not None:
-            pool.close()
+            pool.close(abort=not ok)
         bar.close()
     report["timing_s"] = {**{k: round(v, 2) for k, v in timing.items()}, "total": round(time.perf_counter() - t0, 2)}
     base, chosen = report.pop("_base"), report.pop("_chosen")

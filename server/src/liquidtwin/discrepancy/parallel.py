@@ -89,6 +89,10 @@ class Workers:
         """:func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1."""
         return self._map([("null", r, seed, base, {}) for r in range(runs)])
 
-    def close(self) -> None:
-        self.pool.close()
+    def close(self, abort: bool = False) -> None:
+        """Wait for the workers to exit (``abort``: stop them now, e.g. after an error)."""
+        if abort:
+            self.pool.terminate()
+        else:
+            self.pool.close()
         self.pool.join()
