@@ -66,9 +66,6 @@ class Workers:
         self.ev = ev
         self.pool = mp.get_context("spawn").Pool(jobs, initializer=_init, initargs=(list(eps), list(frames)))
 
-    def _seed(self, name: str | None) -> dict:
-        return {} if name is None else self.ev.entries(name)
-
     def _map(self, tasks: list) -> list:
         out = []
         for result, fresh in self.pool.imap(_run, tasks):
@@ -83,7 +80,7 @@ class Workers:
     def fit(self, searches, rounds: int, base: dict, fit: list) -> None:
         """Run the search of every (candidate name, observed cells) of ``searches`` on the
         ``fit`` frames (into the cache)."""
-        self._map([("fit", n, rounds, dict(base), cells, fit, self._seed(n)) for n, cells in searches])
+        self._map([("fit", n, rounds, dict(base), cells, fit, self.ev.entries(n)) for n, cells in searches])
 
     def null_cells(self, runs: int, seed: int, base) -> list:
         """:func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1."""
