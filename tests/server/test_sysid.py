@@ -4,6 +4,7 @@ sequence file round trip and its errors, the CLI."""
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 
@@ -54,6 +55,10 @@ def test_parameter_gradients_match_finite_differences(seq, loss):
 
 
 def test_the_batch_simulated_together_equals_one_by_one(seq):
+    # In float64: in float32 the samples moved 2 m away round differently (2.4e-7 m), and
+    # over the 10-step horizon the scoop's collisions amplify that to mm (chaos), which moves
+    # the gradient by up to ~15 % whatever the batching does.
+    seq = dataclasses.replace(seq, x=seq.x.double(), v=seq.v.double(), poses=seq.poses.double())
     for loss in ("l1", "projection"):
         cfg = FitConfig(loss=loss)
         lc = torch.tensor(0.13, dtype=torch.float64, requires_grad=True)
@@ -63,9 +68,9 @@ def test_the_batch_simulated_together_equals_one_by_one(seq):
         ga = torch.autograd.grad(a, [lc, lv])
         b = _loss(seq, cfg, starts, lc, lv, spaced=False)
         gb = torch.autograd.grad(b, [lc, lv])
-        assert float(a.detach()) == pytest.approx(float(b.detach()), rel=2e-3)
+        assert float(a.detach()) == pytest.approx(float(b.detach()), rel=1e-9)
         for x, y in zip(ga, gb):
-            assert float(x) == pytest.approx(float(y), rel=2e-2, abs=1e-9)
+            assert float(x) == pytest.approx(float(y), rel=1e-7, abs=1e-15)
 
 
 def test_the_loss_is_zero_at_the_truth_and_grows_away_from_it(seq):

@@ -139,8 +139,8 @@ def batch_loss(seq: Sequence, model, starts, cfg: FitConfig, *, spaced: bool = T
     if not spaced:
         return sum(batch_loss(seq, model, [t], cfg, views=views) for t in starts) / len(starts)
     B, N, M = len(starts), seq.particles, seq.poses.shape[1]
-    shift = torch.zeros(B, 1, 3)
-    shift[:, 0, 0] = torch.arange(B, dtype=torch.float32) * OFFSET_M
+    shift = torch.zeros(B, 1, 3, dtype=seq.x.dtype)
+    shift[:, 0, 0] = torch.arange(B, dtype=seq.x.dtype) * OFFSET_M
     t = torch.as_tensor(np.asarray(starts))
 
     def poses_at(k):
@@ -149,7 +149,8 @@ def batch_loss(seq: Sequence, model, starts, cfg: FitConfig, *, spaced: bool = T
         return p.reshape(B * M, 7)
 
     big = model.replace(objects=tuple(model.objects) * B)
-    state = make_state((seq.x[t] + shift).reshape(B * N, 3), seq.v[t].reshape(B * N, 3), poses=poses_at(0))
+    state = make_state((seq.x[t] + shift).reshape(B * N, 3), seq.v[t].reshape(B * N, 3), poses=poses_at(0),
+                       dtype=seq.x.dtype)
     total = 0.0
     for k in range(1, cfg.horizon + 1):
         state = step(big, state, poses_at(k))
