@@ -48,7 +48,7 @@ LIBRARY = {c.name: c for c in (
     Candidate("wall_adhesion", "particles within a spacing of a wall slowed at rate k", (5.0, 15.0, 35.0, 70.0), "k", True),
     Candidate("leak", "a hole in the source container's wall", (0.003, 0.005, 0.008), "radius"),
     Candidate("blockage", "part of the source's opening blocked on the pouring side", (0.4, 0.7, 1.0), "fraction"),
-    Candidate("fill_error", "true initial fill = stated × (1 + value)", (-0.4, -0.2, 0.2, 0.4), "value"),
+    Candidate("fill_error", "true initial fill = stated × (1 + value), at most to the rim", (-0.4, -0.2, 0.2, 0.4), "value"),
     Candidate("time_offset", "images stamped t show time t − s",
               tuple(np.round(np.arange(-0.3, 0.3001, 0.05), 3).tolist()), "s"),
     Candidate("camera_offset", "stated camera rotated by (rx, ry, rz) deg", (-2.4, -1.2, 1.2, 2.4), "r"),

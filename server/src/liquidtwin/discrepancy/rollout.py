@@ -63,14 +63,17 @@ class Simulator:
         self._fills: dict[float, tuple] = {1.0: self.scene.state.by_id()}
 
     def initial(self, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
-        """(x, v) of the fill with the source's stated volume × ``scale`` (cached)."""
+        """(x, v) of the fill with the source's stated volume × ``scale`` (cached), at most
+        full to the rim: no container starts fuller than it can hold (a 90 % cup told +20 %
+        starts full)."""
         key = round(float(scale), 4)
         if key not in self._fills:
             k = self.source_index
             rep = self.scene.fills[self.source]
             poses = torch.as_tensor(self.scene.initial_poses)
-            s, _ = fill_container(self.model, poses, k, self.scene.objects[k],
-                                  volume_ml=max(rep.asked_ml * key, 1e-3), settle_s=SETTLE_S)
+            obj = self.scene.objects[k]
+            s, _ = fill_container(self.model, poses, k, obj,
+                                  volume_ml=min(max(rep.asked_ml * key, 1e-3), obj.capacity_ml), settle_s=SETTLE_S)
             xs, vs = s.by_id()
             # other containers' fills are kept as they are
             x0, v0 = self._fills[1.0]
