@@ -5,7 +5,7 @@ the world (the truth sidecar; scoring only) and in liquidtwin's open-loop model 
 the recording's stated fill.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/fill_pour_share.py --seed 100 --kinds partial hold \
-        --data eval-data [--full] [--no-history]
+        --data eval-data [--full] [--no-effects] [--no-history]
 
 Why: fill inference (``liquidtwin evaluate fill``) compares what each fill hypothesis pours
 with what the camera sees. When the world's jittered parameters and mild hidden effect keep
@@ -68,18 +68,22 @@ def main() -> None:
     p.add_argument("--data", type=Path, default=Path("eval-data"), help="recording cache (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=1, help="processes generating missing recordings")
     p.add_argument("--full", action="store_true", help="the full scenes (default: quick)")
+    p.add_argument("--no-effects", action="store_true",
+                   help="the same worlds without their hidden effect (same seeds, so the same jitter and noise; "
+                        "use another --data: the recordings keep their names)")
     p.add_argument("--no-history", action="store_true")
     a = p.parse_args()
     torch.set_num_threads(1)
     case_list = cases(quick=not a.full, trials=1, sources=tuple(a.sources), fills=(0.0,) + FILLS, kinds=tuple(a.kinds),
-                      base_seed=a.seed)
+                      base_seed=a.seed, effects=not a.no_effects)
     paths = ensure(case_list, a.data, jobs=a.jobs)
     print(f"{'case':28s} {'hidden effect':24s} {'poured: world':>13s} {'model':>6s} {'spilled: world':>15s} {'model':>6s}")
     for case, path in zip(case_list, paths):
         if case.fraction == 0:                          # the fill benchmark's empty cases: nothing to pour
             continue
         r = measure(Path(path))
-        print(f"{case.name:28s} {f'{case.effect} {case.effect_value:.3g}':24s} {100 * r['world_left']:12.0f}% "
+        hidden = f"{case.effect} {case.effect_value:.3g}" if case.effect else "none"
+        print(f"{case.name:28s} {hidden:24s} {100 * r['world_left']:12.0f}% "
               f"{100 * r['model_left']:5.0f}% {100 * r['world_spilled']:14.0f}% {100 * r['model_spilled']:5.0f}%",
               flush=True)
         emit({"what": "fill_pour_share", "case": case.name, "effect": case.effect, "effect_value": case.effect_value,
