@@ -186,6 +186,9 @@ class FakeServer:
         metrics = Metrics(header=make_header(sid, header.seq, header.stamp_ns),
                           input_seq=header.seq, iou=0.5 if had_mask else math.nan,
                           frames_done=self.answered + 1, rejected=self.rejected)
+        # Stamped before the outputs go out: the client may see all three, finish and close
+        # before this thread runs again (a CI run once found the last stamp missing).
+        self.answer_times[header.stamp_ns] = time.monotonic()
         for stream, msg in (("particles", particle_cloud(self.n_particles, ty)),
                             ("volumes", vols), ("metrics", metrics)):
             att = encode_attachment(make_header(sid, self._out_seq, header.stamp_ns))
@@ -193,7 +196,6 @@ class FakeServer:
             self.zenoh.put(self.keys.stream_out(sid, stream), msg.SerializeToString(),
                            attachment=att, congestion_control=zenoh.CongestionControl.BLOCK)
         self.answered += 1
-        self.answer_times[header.stamp_ns] = time.monotonic()
 
     def publish_raw(self, sid, stream, payload, attachment):
         """Publish an arbitrary output sample (for malformed-output tests)."""
