@@ -103,12 +103,14 @@ std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius) {
     cell_of[i] = static_cast<int64_t>(cell_key.size()) - 1;
   }
   cell_start.push_back(n);
-  // The 27 neighbouring cells of every occupied cell (index into cell_key, -1 when empty),
-  // looked up once per cell rather than once per particle; dz, dy, dx order as before. A
-  // neighbour's rank on an axis is the cell's own ±1 when that coordinate occurs, and the
-  // three cells of a row (dx = -1, 0, 1) have consecutive keys: one search per row.
+  // The neighbour cells of every occupied cell, looked up once per cell rather than once per
+  // particle; dz, dy, dx order as before. A neighbour's rank on an axis is the cell's own ±1
+  // when that coordinate occurs, and the three cells of a row (dx = -1, 0, 1) have
+  // consecutive keys: one search per row. The cells of a row that occur are consecutive
+  // cells, so each row is one contiguous range of sorted points: 9 ranges [begin, end) per
+  // cell (empty when none of the row's cells occurs).
   const int64_t nc = static_cast<int64_t>(cell_key.size());
-  std::vector<int64_t> nbr(27 * nc);
+  std::vector<int64_t> ranges(18 * nc, 0);
   auto near = [&](int ax, int64_t r, int64_t c, int d) -> int64_t {
     const auto& u = uniq[ax];
     const int64_t q = r + d;
@@ -120,41 +122,30 @@ std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius) {
       const int64_t cx = cs[3 * i], cy = cs[3 * i + 1], cz = cs[3 * i + 2];
       const int64_t rx0 = rank(0, cx), ry0 = rank(1, cy), rz0 = rank(2, cz);
       const int64_t rxs[3] = {near(0, rx0, cx, -1), rx0, near(0, rx0, cx, 1)};
-      int64_t* out = &nbr[27 * ci];
+      int64_t* out = &ranges[18 * ci];
       for (int dz = -1; dz <= 1; ++dz) {
         const int64_t rz = near(2, rz0, cz, dz);
-        for (int dy = -1; dy <= 1; ++dy, out += 3) {
-          out[0] = out[1] = out[2] = -1;
+        for (int dy = -1; dy <= 1; ++dy, out += 2) {
           const int64_t ry = rz < 0 ? -1 : near(1, ry0, cy, dy);
           if (ry < 0) continue;
           const int64_t row = u0 * (ry + u1 * rz);
           auto it = std::lower_bound(cell_key.begin(), cell_key.end(), row + (rxs[0] >= 0 ? rxs[0] : rx0));
+          int64_t lo = -1, hi = -1;
           for (int dx = 0; dx < 3; ++dx) {
             if (rxs[dx] < 0) continue;
             const int64_t k = row + rxs[dx];
             while (it != cell_key.end() && *it < k) ++it;
-            if (it != cell_key.end() && *it == k) out[dx] = it - cell_key.begin();
+            if (it != cell_key.end() && *it == k) {
+              const int64_t cj = it - cell_key.begin();
+              if (lo < 0) lo = cj;
+              hi = cj;
+            }
           }
+          if (lo >= 0) { out[0] = cell_start[lo]; out[1] = cell_start[hi + 1]; }
         }
       }
     }
   });
-  // The three cells of a row (dx = -1, 0, 1) that occur are consecutive cells, so each row
-  // is one contiguous range of sorted points: 9 ranges [begin, end) per cell.
-  std::vector<int64_t> ranges(18 * nc);
-  for (int64_t ci = 0; ci < nc; ++ci) {
-    const int64_t* cells = &nbr[27 * ci];
-    int64_t* r = &ranges[18 * ci];
-    for (int row = 0; row < 9; ++row) {
-      int64_t lo = -1, hi = -1;
-      for (int dx = 0; dx < 3; ++dx) {
-        const int64_t cj = cells[3 * row + dx];
-        if (cj >= 0) { if (lo < 0) lo = cj; hi = cj; }
-      }
-      r[2 * row] = lo < 0 ? 0 : cell_start[lo];
-      r[2 * row + 1] = lo < 0 ? 0 : cell_start[hi + 1];
-    }
-  }
   // One distance pass: each block of points lists its neighbours into its own buffer, then the
   // buffers are concatenated in block order (the same lists whatever the thread count). The
   // candidate is always written and the count advanced only for a neighbour: no branch in

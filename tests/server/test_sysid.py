@@ -57,7 +57,7 @@ def test_parameter_gradients_match_finite_differences(seq, loss):
 def test_the_batch_simulated_together_equals_one_by_one(seq):
     # In float64: in float32 the samples moved 2 m away round differently (2.4e-7 m), and
     # over the 10-step horizon the scoop's collisions amplify that to mm (chaos), which moves
-    # the gradient by up to ~15 % whatever the batching does.
+    # the gradient by up to 13 % (measured) whatever the batching does.
     seq = dataclasses.replace(seq, x=seq.x.double(), v=seq.v.double(), poses=seq.poses.double())
     for loss in ("l1", "projection"):
         cfg = FitConfig(loss=loss)
