@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from liquidtwin.discrepancy import CANDIDATES, Extension, Options, apply_physics, camera_for, load_model, save_model
-from liquidtwin.discrepancy.analysis import interval
-from liquidtwin.discrepancy.candidates import COARSE, FINE, LIBRARY, _line, _vertex, main_value
+from liquidtwin.discrepancy.analysis import NULL_FACTOR, NULL_MARGIN, declare, interval
+from liquidtwin.discrepancy.candidates import COARSE, FINE, LIBRARY, _line, _vertex, fit_candidate, main_value
 from liquidtwin.discrepancy.model import model_from_dict, rotation_deg
 from liquidtwin.discrepancy.residuals import CELL, EMPTY_W1, cell_metrics, coarse, pixel_iou
 from liquidtwin.camera import Camera
@@ -213,3 +213,55 @@ def test_a_fill_error_above_the_rim_starts_the_source_full(tmp_path):
     over = 1.05 * cup.capacity_ml / stated        # quick scenes fill the full-size cup a fifth
     n = {scale: len(sim.initial(scale)[0]) for scale in (1.0, over, cup.capacity_ml / stated)}
     assert n[over] == n[cup.capacity_ml / stated] > 4 * n[1.0]
+    assert sim.max_fill_scale() == pytest.approx(cup.capacity_ml / stated)
+
+
+def test_a_fill_error_search_stops_at_the_rim():
+    # a loss that always wants more liquid: the fit reports the fill that reaches the rim (it
+    # used to try +20 and +40 %, identical cups full to the rim, and report +40 %)
+    upper = 0.111
+    for rounds in (COARSE, FINE):
+        ext, _, trace = fit_candidate("fill_error", lambda e: -e.params["value"], {}, rounds, upper)
+        assert max(p["value"] for p, _ in trace) <= upper
+        assert main_value(ext) == pytest.approx(upper)
+
+
+def _all_checked(top, residual_real, gains):
+    """The rule as it was: every one of the best few fitted on the null, the first that passes
+    declared (the reference the lazy ``declare`` must agree with)."""
+    for c in top:
+        thr = max(NULL_FACTOR * max(gains[c["name"]]), 0.0) + NULL_MARGIN
+        if residual_real and c["heldout_gain"]["ci95"][0] > 0 and c["heldout_gain"]["mean"] > thr:
+            return c["name"]
+    return None
+
+
+def test_the_null_is_fitted_only_where_it_can_change_the_decision():
+    rng = np.random.default_rng(3)
+    fitted_total = 0
+    for case in range(300):
+        top = []
+        for k in range(3):
+            mean = float(rng.uniform(-0.05, 0.4))
+            lo = mean - float(rng.uniform(0.0, 0.3))
+            top.append({"name": f"c{k}", "heldout_gain": {"mean": mean, "ci95": [lo, mean + 0.1]}})
+        top.sort(key=lambda c: -c["heldout_gain"]["mean"])
+        gains = {c["name"]: rng.uniform(-0.1, 0.3, size=2).tolist() for c in top}
+        real = bool(rng.random() < 0.8)
+        fitted = []
+
+        def null_gains(c):
+            fitted.append(c["name"])
+            return gains[c["name"]]
+
+        chosen = declare(top, real, null_gains)
+        assert (chosen["name"] if chosen else None) == _all_checked(top, real, gains)
+        fitted_total += len(fitted)
+        for c in top:
+            assert ("null_gains" in c) != ("null_skipped" in c)
+            assert c["declared"] == (chosen is c)
+        # nothing when the residual is not real, nothing after the declared one, and nothing that no null could declare, is fitted
+        stop = [c["name"] for c in top].index(chosen["name"]) + 1 if chosen else len(top)
+        assert fitted == [c["name"] for c in top[:stop]
+                          if real and c["heldout_gain"]["ci95"][0] > 0 and c["heldout_gain"]["mean"] > NULL_MARGIN]
+    assert 0 < fitted_total < 300 * 3       # the draw exercises both fitting and skipping

@@ -6,16 +6,17 @@
 2. Calibrate the base model's λ_v and λ_c on the fitting frames.
 3. Show what is wrong: the base model's residuals (per-frame IOU and coarse loss, where the
    liquid is missing or extra, mass over time) and their structure (``evidence``).
-4. Name the cause: fit every candidate of the library coarsely on the fitting frames, refit
-   the ``top`` best (lowest fitting loss) finely, and rank them by their gain on the held-out
-   frames (95 % interval by resampling held-out blocks).
-5. Guard against false discovery with data generated from the fitted base model alone
-   (``null_runs`` realisations: other initial jitter, mask noise). If the base model misses
-   the recording by no more than ``RESIDUAL_FACTOR`` × what it misses its own realisations by,
-   there is nothing to explain: ``none``. Else the best few candidates are fitted again on
-   the null data, and one is declared only when its held-out gain interval is above zero and
-   its gain exceeds ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN``; when none is, the
-   residual is ``unexplained`` and a minimum-norm learned correction is fitted instead.
+4. Is there anything to explain? ``null_runs`` realisations of the fitted base model (other
+   initial jitter, mask noise): if the base model misses the recording by no more than
+   ``RESIDUAL_FACTOR`` × what it misses its own realisations by, the answer is ``none``.
+5. Name the cause: fit every candidate of the library coarsely on the fitting frames; when
+   the residual is real, refit the ``top`` best (lowest fitting loss) finely; rank them by
+   their gain on the held-out frames (95 % interval by resampling held-out blocks).
+6. Guard against false discovery: in ranked order, a candidate whose held-out gain interval
+   is above zero is fitted again on the null realisations, and declared when its gain exceeds
+   ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN``; the first declared is the decision (the
+   ones after it are not checked). When none is, the residual is ``unexplained`` and a
+   minimum-norm learned correction is fitted instead.
 
 Only the recordings are read; nothing here knows of truth sidecars.
 """
@@ -163,6 +164,13 @@ class _Evaluator:
                 self.bar.update()
         return self._cells[k]
 
+    def upper(self, name: str) -> float | None:
+        """``fit_candidate``'s bound on candidate ``name``'s main parameter: a fill error beyond
+        the one that fills every episode's source to the rim changes nothing."""
+        if name == "fill_error":
+            return round(max(s.max_fill_scale() for s in self.sims) - 1.0, 4)
+        return None
+
     def iou(self, ext: Extension) -> list:
         self.cells(ext)
         return self._iou[_key(ext)]
@@ -219,6 +227,35 @@ def interval(values: np.ndarray, blocks: np.ndarray, rng, n: int) -> list:
         means.append(np.concatenate([groups[k] for k in pick]).mean())
     lo, hi = np.percentile(means, [2.5, 97.5])
     return [float(lo), float(hi)]
+
+
+def declare(top: list, residual_real: bool, null_gains) -> dict | None:
+    """Check the best few candidates ``top`` (ranked by held-out gain) against the null, in
+    order, and return the first declared (or None). ``null_gains(c)`` fits candidate ``c`` on
+    each null realisation and returns its held-out gains there (the expensive part). A
+    candidate is declared when the residual is real, its held-out gain interval is above zero
+    and its gain exceeds ``NULL_FACTOR`` × its best null gain + ``NULL_MARGIN``. Only the
+    candidates that can change the decision are fitted on the null: none when the residual is
+    not real, none whose interval reaches zero or whose gain is within the margin (no null can
+    declare them), none after the first declared. Each candidate gets ``declared`` and either
+    ``null_gains`` + ``null_threshold`` or ``null_skipped`` (why)."""
+    chosen = None
+    for c in top:
+        c["declared"] = False
+        gain = c["heldout_gain"]
+        if not residual_real:
+            c["null_skipped"] = "the residual is not real"
+        elif chosen is not None:
+            c["null_skipped"] = f"{chosen['name']} ranks higher and is declared"
+        elif not (gain["ci95"][0] > 0 and gain["mean"] > NULL_MARGIN):
+            c["null_skipped"] = "its held-out gain interval reaches zero or the gain is within the margin"
+        else:
+            c["null_gains"] = list(null_gains(c))
+            c["null_threshold"] = max(NULL_FACTOR * max(c["null_gains"]), 0.0) + NULL_MARGIN
+            c["declared"] = bool(gain["mean"] > c["null_threshold"])
+            if c["declared"]:
+                chosen = c
+    return chosen
 
 
 def _null_cells(sims, frames, base: Extension, run: int, seed: int) -> list:
@@ -314,12 +351,25 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         evid[name] = {**evid[name], "tracker": tracker}
     timing["tracker_corrections"] = time.perf_counter() - t
 
-    # 3. fit and rank every candidate
+    # 3. the null realisations: is there anything to explain? (decides how much fitting is worth)
     t = time.perf_counter()
+    null_base, null_cells = [], []
+    realisations = (pool.null_cells(opt.null_runs, opt.seed, base) if pool is not None else
+                    [_null_cells(sims, frames, base, run, opt.seed) for run in range(opt.null_runs)])
     held_base, blocks = _held(base_loss, data)
+    for cells in realisations:
+        nb, _ = _held(ev.losses(base, cells), data)
+        null_base.append(float(nb.mean()))
+        null_cells.append((cells, nb))
+    residual_real = bool(null_base) and float(held_base.mean()) > RESIDUAL_FACTOR * max(null_base)
+    timing["null"] = time.perf_counter() - t
+
+    # 4. fit and rank every candidate
+    t = time.perf_counter()
     held_base_iou, _ = _held(base_iou, data)
     def scored(name, rounds):
-        ext, fit_loss, trace = fit_candidate(name, lambda e: ev.fit_loss(e, data), base.base, rounds)
+        ext, fit_loss, trace = fit_candidate(name, lambda e: ev.fit_loss(e, data), base.base, rounds,
+                                                     ev.upper(name))
         held_ext, _ = _held(ev.losses(ext, data.cells), data)
         held_iou, _ = _held(ev.iou(ext), data)
         gain = held_base - held_ext
@@ -338,49 +388,35 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     for name in opt.candidates:
         bar.set_postfix_str(name)
         ranked.append(scored(name, COARSE))
-    # the best few by fitting loss gain are fitted finer (cached points are not re-simulated)
     ranked.sort(key=lambda c: c["fit_loss"])
-    if pool is not None:
-        pool.fit([(c["name"], data.cells) for c in ranked[: opt.top]], FINE, base.base, data.fit)
-    for i in range(min(opt.top, len(ranked))):
-        bar.set_postfix_str(f"refine {ranked[i]['name']}")
-        ranked[i] = scored(ranked[i]["name"], FINE)
+    # The best few by fitting loss are fitted finer (cached points are not re-simulated) — only
+    # when the residual is real: otherwise nothing can be declared, and the coarse fits are the
+    # record of what each candidate would have done.
+    if residual_real:
+        if pool is not None:
+            pool.fit([(c["name"], data.cells) for c in ranked[: opt.top]], FINE, base.base, data.fit)
+        for i in range(min(opt.top, len(ranked))):
+            bar.set_postfix_str(f"refine {ranked[i]['name']}")
+            ranked[i] = scored(ranked[i]["name"], FINE)
     ranked.sort(key=lambda c: -c["heldout_gain"]["mean"])
     timing["fit"] = time.perf_counter() - t
 
-    # 4. the null
+    # 5. the best few against their null, in ranked order, until one is declared (``declare``)
     t = time.perf_counter()
-    null_base, null_cells = [], []
-    realisations = (pool.null_cells(opt.null_runs, opt.seed, base) if pool is not None else
-                    [_null_cells(sims, frames, base, run, opt.seed) for run in range(opt.null_runs)])
-    for cells in realisations:
-        nb, _ = _held(ev.losses(base, cells), data)
-        null_base.append(float(nb.mean()))
-        null_cells.append((cells, nb))
-    residual_real = bool(null_base) and float(held_base.mean()) > RESIDUAL_FACTOR * max(null_base)
-    if residual_real:              # only then is it worth asking which cause beats its null
+    def null_gains(c):
         if pool is not None:
-            pool.fit([(c["name"], cells) for c in ranked[: opt.top] for cells, _ in null_cells], FINE, base.base,
-                     data.fit)
-        for c in ranked[: opt.top]:
-            c["null_gains"] = []
-            for cells, nb in null_cells:
-                nd = _Data(cells, data.fit, data.held, data.blocks)
-                ext, _, _ = fit_candidate(c["name"], lambda e: ev.fit_loss(e, nd), base.base, FINE)
-                ne, _ = _held(ev.losses(ext, cells), data)
-                c["null_gains"].append(float((nb - ne).mean()))
-    timing["null"] = time.perf_counter() - t
+            pool.fit([(c["name"], cells) for cells, _ in null_cells], FINE, base.base, data.fit)
+        out = []
+        for cells, nb in null_cells:
+            nd = _Data(cells, data.fit, data.held, data.blocks)
+            ext, _, _ = fit_candidate(c["name"], lambda e: ev.fit_loss(e, nd), base.base, FINE, ev.upper(c["name"]))
+            ne, _ = _held(ev.losses(ext, cells), data)
+            out.append(float((nb - ne).mean()))
+        return out
 
-    decision, chosen = "none", base
-    for c in ranked[: opt.top]:
-        if "null_gains" not in c:
-            c["declared"] = False
-            continue
-        thr = max(NULL_FACTOR * max(c["null_gains"]), 0.0) + NULL_MARGIN
-        c["null_threshold"] = thr
-        c["declared"] = bool(c["heldout_gain"]["ci95"][0] > 0 and c["heldout_gain"]["mean"] > thr)
-        if c["declared"] and decision == "none" and residual_real:
-            decision, chosen = c["name"], c["_ext"]
+    declared = declare(ranked[: opt.top], residual_real, null_gains)
+    decision, chosen = (declared["name"], declared["_ext"]) if declared else ("none", base)
+    timing["null"] += time.perf_counter() - t
     learned = None
     if decision == "none" and residual_real:
         decision = "unexplained"

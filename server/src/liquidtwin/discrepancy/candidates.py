@@ -111,11 +111,14 @@ def _line(f: Callable[[float], float], grid, log: bool, rounds: int = COARSE) ->
 
 
 def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict,
-                  rounds: int = COARSE) -> tuple[Extension, float, list]:
+                  rounds: int = COARSE, upper: float | None = None) -> tuple[Extension, float, list]:
     """Fit candidate ``name`` with ``rounds`` refinements after the coarse grid; returns (the
     extension: after the coarse grid alone its best point tried, after refinement the last
     line search's parabola minimum; its fitting loss; [(params, loss), …]). The analysis
-    caches evaluations, so a finer fit after a coarse one only pays for its new points."""
+    caches evaluations, so a finer fit after a coarse one only pays for its new points.
+    ``upper``: the largest value of a one-parameter candidate's main parameter that still
+    changes the model (grid points above it are moved onto it), e.g. the fill error that fills
+    the source to its rim."""
     c = LIBRARY[name]
     trace = []
 
@@ -157,7 +160,8 @@ def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict
                 r[axis] = v
         params = {"rx": r[0], "ry": r[1], "rz": r[2]}
     else:
-        v, _, _ = _line(lambda v: run(**{c.key: v}), c.grid, c.log, rounds)
+        grid = c.grid if upper is None else tuple(sorted({min(float(g), float(upper)) for g in c.grid}))
+        v, _, _ = _line(lambda v: run(**{c.key: v}), grid, c.log, rounds)
         params = {c.key: v}
     if rounds <= COARSE:                               # coarse: the best point tried
         params = min(trace, key=lambda t: t[1])[0]

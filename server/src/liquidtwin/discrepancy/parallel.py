@@ -49,7 +49,7 @@ def _run(task) -> tuple:
     elif kind == "fit":
         name, rounds, base, cells, fit = args
         data = _Data(cells, fit, None, None)
-        ext, _, _ = fit_candidate(name, lambda e: ev.fit_loss(e, data), base, rounds)
+        ext, _, _ = fit_candidate(name, lambda e: ev.fit_loss(e, data), base, rounds, ev.upper(name))
         ev.cells(ext)
     elif kind == "null":
         run, seed_value, base = args

@@ -23,6 +23,12 @@ def _fmt(v, nd=3) -> str:
     return str(v)
 
 
+def _null_cell(c: dict) -> str:
+    if "null_gains" in c:
+        return _fmt(c["null_gains"])
+    return f"not fitted: {c['null_skipped']}" if "null_skipped" in c else ""
+
+
 def markdown(report: dict) -> str:
     """report.md: decision, base vs extended, the candidate ranking with the null, the split."""
     b, e = report["baseline"], report["extended"]
@@ -38,7 +44,7 @@ def markdown(report: dict) -> str:
         g = c["heldout_gain"]
         params = ", ".join(f"{k}={v:.4g}" for k, v in c["params"].items())
         lines.append(f"| {i} | {c['name']} | {params} | {g['mean']:.3f} | {_fmt(g['ci95'])} | {c['heldout_iou_gain']:+.3f} | "
-                     f"{_fmt(c.get('null_gains'))} | {_fmt(c.get('null_threshold'))} | {'yes' if c.get('declared') else ''} |")
+                     f"{_null_cell(c)} | {_fmt(c.get('null_threshold'))} | {'yes' if c.get('declared') else ''} |")
     if report.get("learned"):
         g = report["learned"]["heldout_gain"]
         lines += ["", f"No candidate explains the residual: a minimum-norm learned correction a = W [v, 1] "
@@ -59,7 +65,8 @@ def markdown(report: dict) -> str:
               f"{_fmt(report['null']['base_heldout_loss'])} (the recording's: {b['heldout_loss']:.3f}; a residual is real above "
               f"{report['null']['residual_factor']} × the largest: {'yes' if report['null']['residual_real'] else 'no'}). "
               f"A candidate is declared when the residual is real, its gain's interval is above 0 and its gain exceeds "
-              f"{report['null']['factor']} × its best null gain + {report['null']['margin']}.", "",
+              f"{report['null']['factor']} × its best null gain + {report['null']['margin']}; the best few are fitted on the "
+              "null in ranked order until one is declared.", "",
               "Time per stage (s): " + ", ".join(f"{k} {v}" for k, v in report["timing_s"].items()), ""]
     return "\n".join(lines)
 

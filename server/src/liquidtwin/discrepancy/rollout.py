@@ -84,6 +84,11 @@ class Simulator:
             self._fills[key] = (xs.float(), vs.float())
         return self._fills[key]
 
+    def max_fill_scale(self) -> float:
+        """The largest fill scale that still changes the fill: the source full to its rim."""
+        rep = self.scene.fills[self.source]
+        return float(self.scene.objects[self.source_index].capacity_ml) / max(float(rep.asked_ml), 1e-9)
+
     def rollout(self, ext: Extension, *, steps: int | None = None, initial=None) -> Trajectory:
         """Run ``ext``'s model open loop from its initial fill (or ``initial`` = (x, v)) through
         the recorded poses."""
