@@ -5,7 +5,8 @@
 Generates the recording (not timed; seed 4, cup 90 % full), runs ``discrepancy.analyse`` with
 the default options (all ten candidates, calibration, 2 null runs) in ``--jobs`` processes
 (``Options.jobs``; 1: all in this one) and prints the report's ``timing_s`` per stage, the
-number of model evaluations, the particle count, the recording's length and the peak resident
+number of model evaluations, the decision with its fitted value beside the planted effect
+(read from the truth sidecar after the analysis), the particle count, the recording's length and the peak resident
 memory of this process (with ``--jobs`` > 1 each worker holds its own simulators too). The issue's target: a 10-second single-camera recording
 in under 10 minutes on 2 cores (the full ``pour_partial`` lasts 8.5 s). Appends one record to
 bench/history.jsonl.
@@ -50,11 +51,15 @@ def main() -> None:
         t0 = time.perf_counter()
         report = analyse([rec], Path(d) / "out", options=Options(jobs=args.jobs), progress=True)
         wall = time.perf_counter() - t0
+        truth = json.loads(g.truth.read_text())      # read for scoring, after the analysis
     dur = report["_series"]["t"][0]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     record = {"what": "discrepancy_end_to_end", "scene": args.scene, "quick": args.quick, "effect": args.effect,
               "particles": g.particles, "steps": g.steps, "mask_frames": g.masks, "wall_s": round(wall, 1),
               "timing_s": report["timing_s"], "evaluations": report["evaluations"], "decision": report["decision"],
+              "fitted": next((c["value"] for c in report["candidates"] if c["name"] == report["decision"]), None),
+              "planted": truth["effect"],
+              "null_fitted": [c["name"] for c in report["candidates"] if "null_gains" in c],
               "informative_frames_s": [round(dur[0], 3), round(dur[-1], 3)] if dur else None,
               "jobs": args.jobs, "peak_mem_bytes": _vm_hwm(), "commit": commit,
               "date": datetime.now(timezone.utc).isoformat()}
