@@ -265,3 +265,34 @@ def test_the_null_is_fitted_only_where_it_can_change_the_decision():
         assert fitted == [c["name"] for c in top[:stop]
                           if real and c["heldout_gain"]["ci95"][0] > 0 and c["heldout_gain"]["mean"] > NULL_MARGIN]
     assert 0 < fitted_total < 300 * 3       # the draw exercises both fitting and skipping
+
+
+def test_only_base_rollouts_are_kept_for_re_drawing():
+    from liquidtwin.discrepancy.analysis import KEEP_TRAJECTORIES, _Evaluator
+
+    class Sim:
+        rollouts = 0
+
+        def rollout(self, ext):
+            Sim.rollouts += 1
+            return ("trajectory", ext.name, tuple(sorted(ext.params.items())), tuple(sorted(ext.base.items())))
+
+    ev = _Evaluator([Sim()])
+    base = Extension("none", {}, {"lambda_v": 50.0})
+    first = ev._trajectories(base)
+    # observation candidates re-draw the base rollout: no new simulation
+    for s in (-0.1, 0.05, 0.2):
+        assert ev._trajectories(Extension("time_offset", {"s": s}, base.base)) is first
+    assert ev._trajectories(Extension("camera_offset", {"rx": 1.0, "ry": 0.0, "rz": 0.0}, base.base)) is first
+    assert Sim.rollouts == 1
+    # physics candidates are simulated and not kept (a full-size rollout is ~40 MB)
+    for c in (0.5, 1.0, 2.0):
+        ev._trajectories(Extension("drag", {"c": c}, base.base))
+    assert Sim.rollouts == 4 and len(ev._traj) == 1
+    # base rollouts at other calibrated parameters are kept, the oldest dropped past the limit
+    for lv in range(KEEP_TRAJECTORIES + 2):
+        ev._trajectories(Extension("none", {}, {"lambda_v": 60.0 + lv}))
+    assert len(ev._traj) == KEEP_TRAJECTORIES
+    n = Sim.rollouts
+    ev._trajectories(Extension("time_offset", {"s": 0.1}, {"lambda_v": 60.0 + KEEP_TRAJECTORIES + 1}))
+    assert Sim.rollouts == n

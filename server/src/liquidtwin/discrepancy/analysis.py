@@ -51,6 +51,8 @@ RESIDUAL_FACTOR = 1.2
 CALIBRATION_FACTORS = (0.75, 0.9, 1.1, 1.25)
 #: Mask noise of the null realisations (mid-range of what the generator's sensors draw).
 NULL_NOISE = MaskNoise(miss=0.05, false=1.5e-4, ragged_px=0.75, blob_px=4.0, speck_share=0.3)
+#: Rollouts of the base physics kept for re-drawing (oldest dropped first).
+KEEP_TRAJECTORIES = 4
 #: Initial-velocity jitter that makes a null realisation a different run of the same model, m/s.
 NULL_JITTER = 1e-3
 
@@ -142,13 +144,19 @@ class _Evaluator:
         return out
 
     def _trajectories(self, ext: Extension):
+        """Every episode's rollout of ``ext``'s physics. Only rollouts of the base physics are
+        kept (the last few): observation candidates re-draw them; a physics candidate's rollout
+        is drawn once, its cells cached, and dropped (a full-size pour's is ~40 MB)."""
         phys = ext if not LIBRARY.get(ext.name) or not LIBRARY[ext.name].observation else Extension("none", {}, ext.base)
         k = _key(phys)
-        if k not in self._traj:
-            if len(self._traj) > 64:
-                self._traj.clear()
-            self._traj[k] = [s.rollout(phys) for s in self.sims]
-        return self._traj[k]
+        if k in self._traj:
+            return self._traj[k]
+        trajs = [s.rollout(phys) for s in self.sims]
+        if phys.name == "none":
+            if len(self._traj) >= KEEP_TRAJECTORIES:
+                self._traj.pop(next(iter(self._traj)))
+            self._traj[k] = trajs
+        return trajs
 
     def cells(self, ext: Extension) -> list:
         k = _key(ext)
