@@ -134,6 +134,17 @@ def test_sequence_files_round_trip_and_refuse_bad_ones(seq, tmp_path):
         load_sequence(tmp_path / "nan.npz")
 
 
+def test_an_annealed_learning_rate_ends_with_small_steps(seq):
+    # Adam's first step is lr in the parameter's units (0.05 × 0.1 for λ_c); with lr_final the
+    # last one is taken at lr × lr_final (cosine), so it is far smaller
+    res = fit(seq, FitConfig(params=("lambda_c",), init={"lambda_c": 0.05}, lr=0.05, lr_final=0.01, iterations=6,
+                             batch=2))
+    steps = np.abs(np.diff(res.history[:, 0]))
+    assert steps[0] == pytest.approx(0.05 * 0.1, rel=1e-3)
+    assert steps[-1] < 5 * 0.05 * 0.01 * 0.1
+    assert res.as_dict()["config"]["lr_final"] == 0.01
+
+
 def test_config_refuses_what_cannot_be_fitted():
     with pytest.raises(ValueError, match="cannot fit"):
         FitConfig(params=("gravity",))
@@ -143,6 +154,9 @@ def test_config_refuses_what_cannot_be_fitted():
         FitConfig(loss="l2")
     with pytest.raises(ValueError, match="finite"):
         FitConfig(init={"lambda_c": float("nan")})
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="lr_final"):
+            FitConfig(lr_final=bad)
 
 
 def test_within_from_and_thesis_initialisations():

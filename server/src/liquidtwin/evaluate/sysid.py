@@ -64,6 +64,11 @@ def configure(p) -> None:
     p.add_argument("--steps", type=int, default=None, metavar="N",
                    help="simulate only the first N steps of the scoop (default: all of it)")
     p.add_argument("--seed", type=int, default=0, metavar="N", help="scene draw (default: %(default)s)")
+    p.add_argument("--lr", type=float, default=1e-2, help="Adam learning rate in each parameter's units "
+                                                            "(default: %(default)s, the thesis's)")
+    p.add_argument("--lr-final", type=float, default=1.0, metavar="F",
+                   help="anneal the learning rate (cosine) to F x --lr by the last iteration (default: %(default)s: "
+                        "constant)")
     p.add_argument("--jobs", type=int, default=2, metavar="N", help="fits run in parallel (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
 
@@ -88,13 +93,14 @@ def run_case(work) -> dict:
     import torch
 
     from ..sysid import FitConfig, fit, simulate_sequence
-    case, iterations, steps, progress = work
+    case, iterations, steps, progress, lr, lr_final = work
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     seq = simulate_sequence("ladle", case.truth, seed=case.seed, quick=case.quick, steps=steps)
     sim_s = time.perf_counter() - t0
     res = fit(seq, FitConfig(params=("lambda_c", "lambda_v"), init=case.init, loss=case.loss,
-                             iterations=iterations, seed=case.seed), progress=progress, desc=case.name)
+                             iterations=iterations, lr=lr, lr_final=lr_final, seed=case.seed),
+              progress=progress, desc=case.name)
     truth = np.array([case.lambda_c, case.lambda_v])
     return {"case": asdict(case) | {"name": case.name, "init": case.init}, "particles": seq.particles,
             "steps": seq.steps, "sequence_s": sim_s, "fit": res.as_dict(),
@@ -113,8 +119,14 @@ def run(args) -> int:
         raise SystemExit(f"--loss takes {', '.join(LOSSES)}, got {args.loss!r}")
     if args.iterations < 1 or (args.cases is not None and not 1 <= args.cases <= 9):
         raise SystemExit("--iterations must be >= 1 and --cases 1-9")
+    from ..sysid import FitConfig
+    try:
+        FitConfig(lr=args.lr, lr_final=args.lr_final)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     todo = cases(losses, quick=args.quick, seed=args.seed, pairs=args.cases)
-    work = [(c, args.iterations, args.steps, not args.no_progress and args.jobs <= 1) for c in todo]
+    work = [(c, args.iterations, args.steps, not args.no_progress and args.jobs <= 1, args.lr, args.lr_final)
+            for c in todo]
     results = []
     t0 = time.perf_counter()
     for r in tqdm(map_jobs(run_case, work, args.jobs), total=len(work), desc="sysid", unit="fit",

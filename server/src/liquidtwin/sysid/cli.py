@@ -53,6 +53,9 @@ def configure(p) -> None:
     fit.add_argument("--horizon", type=int, default=2, help="steps rolled out from each (default: %(default)s)")
     fit.add_argument("--lr", type=float, default=1e-2, help="Adam learning rate, in units of each "
                                                                "parameter's usual size (default: %(default)s)")
+    fit.add_argument("--lr-final", type=float, default=1.0, metavar="F",
+                     help="anneal the learning rate (cosine) to F x --lr by the last iteration; 1: constant, "
+                          "as the thesis (default: %(default)s)")
     p.add_argument("--out", type=Path, metavar="DIR", help="write fit.json and convergence.png here")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -68,7 +71,8 @@ def run(args) -> int:
     try:
         cfg = FitConfig(params=tuple(s.strip() for s in args.params.split(",") if s.strip()),
                         init=_values(args.init, "--init"), loss=args.loss, batch=args.batch,
-                        horizon=args.horizon, lr=args.lr, iterations=args.iterations, seed=args.seed)
+                        horizon=args.horizon, lr=args.lr, lr_final=args.lr_final, iterations=args.iterations,
+                        seed=args.seed)
         t0 = time.perf_counter()
         if args.data is not None:
             seq = load_sequence(args.data)

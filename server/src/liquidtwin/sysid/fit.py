@@ -48,7 +48,9 @@ TAIL = 0.1
 class FitConfig:
     """How to fit. ``params``: which λ to estimate; ``init``: their starting values (missing:
     the model defaults); ``loss``: "l1" (particle correspondence) or "projection" (masks-like
-    images, no correspondence); thesis values for the rest."""
+    images, no correspondence); ``lr_final``: the learning rate anneals (cosine) from ``lr`` to
+    ``lr_final`` × ``lr`` at the last iteration (1: constant, the thesis's); thesis values for
+    the rest."""
 
     params: tuple = ("lambda_c", "lambda_v")
     init: dict = field(default_factory=dict)
@@ -56,6 +58,7 @@ class FitConfig:
     batch: int = 8
     horizon: int = 2
     lr: float = 1e-2
+    lr_final: float = 1.0
     iterations: int = 300
     seed: int = 0
 
@@ -73,6 +76,8 @@ class FitConfig:
                 raise ValueError(f"{name} must be at least {lo}, got {getattr(self, name)}")
         if not (math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"lr must be > 0, got {self.lr}")
+        if not (math.isfinite(self.lr_final) and 0 < self.lr_final <= 1):
+            raise ValueError(f"lr_final must be in (0, 1], got {self.lr_final}")
         for k, v in self.init.items():
             if not (math.isfinite(float(v)) and float(v) >= 0):
                 raise ValueError(f"initial {k} must be a finite number >= 0, got {v}")
@@ -174,6 +179,8 @@ def fit(seq: Sequence, cfg: FitConfig = FitConfig(), *, progress: bool = False, 
     theta = torch.tensor([float(cfg.init.get(p, defaults[p])) for p in cfg.params], dtype=torch.float64) / scale
     theta.requires_grad_(True)
     opt = torch.optim.Adam([theta], lr=cfg.lr)
+    sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, cfg.iterations - 1), eta_min=cfg.lr * cfg.lr_final)
+             if cfg.lr_final < 1 else None)
     rng = np.random.default_rng(cfg.seed)
     views = Views(seq)
     hist = [(theta.detach() * scale).numpy().copy()]
@@ -194,6 +201,8 @@ def fit(seq: Sequence, cfg: FitConfig = FitConfig(), *, progress: bool = False, 
             norm, clipped = CLIP * ema, clipped + 1
         ema = norm if it == 0 else (1 - EMA) * ema + EMA * norm
         opt.step()
+        if sched is not None:
+            sched.step()
         with torch.no_grad():
             theta.clamp_(min=0.0)
         hist.append((theta.detach() * scale).numpy().copy())
