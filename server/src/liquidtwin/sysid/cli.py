@@ -31,7 +31,7 @@ def _values(text: str, what: str) -> dict:
 
 
 def configure(p) -> None:
-    from .fit import LOSSES, SCALES
+    from .fit import LOSSES, SCALES, FitConfig
     src = p.add_argument_group("data (one of)")
     src.add_argument("--data", type=Path, metavar="SEQ.npz", help="a saved sequence (see --save-data)")
     src.add_argument("--scene", default="ladle", help="simulate this catalogue scene (default: %(default)s)")
@@ -51,11 +51,11 @@ def configure(p) -> None:
     fit.add_argument("--iterations", type=int, default=300, help="Adam iterations (default: %(default)s)")
     fit.add_argument("--batch", type=int, default=8, help="sampled states per iteration (default: %(default)s)")
     fit.add_argument("--horizon", type=int, default=2, help="steps rolled out from each (default: %(default)s)")
-    fit.add_argument("--lr", type=float, default=1e-2, help="Adam learning rate, in units of each "
-                                                               "parameter's usual size (default: %(default)s)")
-    fit.add_argument("--lr-final", type=float, default=1.0, metavar="F",
-                     help="anneal the learning rate (cosine) to F x --lr by the last iteration; 1: constant, "
-                          "as the thesis (default: %(default)s)")
+    fit.add_argument("--lr", type=float, default=FitConfig.lr, help="Adam learning rate, in units of each "
+                                                                   "parameter's usual size (default: %(default)s)")
+    fit.add_argument("--lr-final", type=float, default=FitConfig.lr_final, metavar="F",
+                     help="anneal the learning rate (cosine) to F x --lr by the last iteration; the thesis: "
+                          "--lr 0.01 --lr-final 1, constant (default: %(default)s)")
     p.add_argument("--out", type=Path, metavar="DIR", help="write fit.json and convergence.png here")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
