@@ -376,8 +376,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     t = time.perf_counter()
     held_base_iou, _ = _held(base_iou, data)
     def scored(name, rounds):
-        ext, fit_loss, trace = fit_candidate(name, lambda e: ev.fit_loss(e, data), base.base, rounds,
-                                                     ev.upper(name))
+        ext, fit_loss, trace = fit_candidate(name, lambda e: ev.fit_loss(e, data), base.base, rounds, ev.upper(name))
         held_ext, _ = _held(ev.losses(ext, data.cells), data)
         held_iou, _ = _held(ev.iou(ext), data)
         gain = held_base - held_ext

@@ -183,8 +183,10 @@ def fit(seq: Sequence, cfg: FitConfig = FitConfig(), *, progress: bool = False, 
     theta = torch.tensor([float(cfg.init.get(p, defaults[p])) for p in cfg.params], dtype=torch.float64) / scale
     theta.requires_grad_(True)
     opt = torch.optim.Adam([theta], lr=cfg.lr)
-    sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, cfg.iterations - 1), eta_min=cfg.lr * cfg.lr_final)
-             if cfg.lr_final < 1 else None)
+    sched = None
+    if cfg.lr_final < 1:             # the last iteration runs at lr × lr_final
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, cfg.iterations - 1),
+                                                           eta_min=cfg.lr * cfg.lr_final)
     rng = np.random.default_rng(cfg.seed)
     views = Views(seq)
     hist = [(theta.detach() * scale).numpy().copy()]
