@@ -285,6 +285,22 @@ def _fit_times(ep, ts, fit: np.ndarray, frames) -> np.ndarray:
     return np.isin(np.round(ts * 1e6), np.round(ep.frame_t[frames][fit] * 1e6))
 
 
+def prepare(sources: list, opt: Options, bar=None) -> tuple:
+    """Load the recordings and build what every stage evaluates with: (episodes, their
+    Simulators, the _Evaluator restricted to the informative frames, those frames per
+    episode, the fit / held-out split and its description, the worker pool or None)."""
+    eps = [load_episode(s, opt.camera) for s in sources]
+    sims = [Simulator(e) for e in eps]
+    ev = _Evaluator(sims, bar)
+    # Frames where neither the recording nor the stated model shows liquid say nothing.
+    frames = [np.nonzero((coarse(e.masks).sum((1, 2)) >= MIN_CELLS) | (c.sum((1, 2)) >= MIN_CELLS))[0]
+              for e, c in zip(eps, ev.cells(Extension()))]
+    data, split = _split(eps, opt.block_s, frames)
+    ev.restrict(frames)
+    pool = Workers(ev, eps, frames, opt.jobs) if opt.jobs > 1 else None
+    return eps, sims, ev, frames, data, split, pool
+
+
 def analyse(sources, out=None, *, options: Options | None = None, progress: bool = False) -> dict:
     """Run discrepancy discovery on recordings ``sources`` (MCAP paths or Recordings).
 
@@ -297,16 +313,8 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
     sources = list(sources) if isinstance(sources, (list, tuple)) else [sources]
     if not sources:
         raise ValueError("no recordings given")
-    eps = [load_episode(s, opt.camera) for s in sources]
     bar = tqdm(desc="discrepancy", unit="model", disable=not progress, leave=False)
-    sims = [Simulator(e) for e in eps]
-    ev = _Evaluator(sims, bar)
-    # Frames where neither the recording nor the stated model shows liquid say nothing.
-    frames = [np.nonzero((coarse(e.masks).sum((1, 2)) >= MIN_CELLS) | (c.sum((1, 2)) >= MIN_CELLS))[0]
-              for e, c in zip(eps, ev.cells(Extension()))]
-    data, split = _split(eps, opt.block_s, frames)
-    ev.restrict(frames)
-    pool = Workers(ev, eps, frames, opt.jobs) if opt.jobs > 1 else None
+    eps, sims, ev, frames, data, split, pool = prepare(sources, opt, bar)
     timing["build"] = time.perf_counter() - t0
     ok = False
     try:
@@ -324,26 +332,32 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
     return report
 
 
+def calibrate(sims, ev, pool, data) -> tuple[Extension, list]:
+    """The base model's λ_v, then λ_c, searched at :data:`CALIBRATION_FACTORS` × the stated
+    values on the fitting frames (``pool``: workers that draw each search's trials at once).
+    Returns (the calibrated base, [{base, fit_loss}, …] of every trial)."""
+    base, calib = Extension(), []
+    defaults = {"lambda_v": float(sims[0].model.params.lambda_v), "lambda_c": float(sims[0].model.params.lambda_c)}
+    best = ev.fit_loss(base, data)
+    for key in ("lambda_v", "lambda_c"):
+        trials = [Extension("none", {}, {**base.base, key: defaults[key] * f}) for f in CALIBRATION_FACTORS]
+        if pool is not None:
+            pool.draw(trials)
+        for trial in trials:
+            loss = ev.fit_loss(trial, data)
+            calib.append({"base": trial.base, "fit_loss": loss})
+            if loss < best:
+                best, base = loss, trial
+    return base, calib
+
+
 def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     """Calibrate, measure, fit, rank and check against the null (module doc, 2–5)."""
     rng = np.random.default_rng(opt.seed)
 
     # 1. calibrate the base
     t = time.perf_counter()
-    base = Extension()
-    calib = []
-    if opt.calibrate:
-        defaults = {"lambda_v": float(sims[0].model.params.lambda_v), "lambda_c": float(sims[0].model.params.lambda_c)}
-        best = ev.fit_loss(base, data)
-        for key in ("lambda_v", "lambda_c"):
-            trials = [Extension("none", {}, {**base.base, key: defaults[key] * f}) for f in CALIBRATION_FACTORS]
-            if pool is not None:
-                pool.draw(trials)
-            for trial in trials:
-                loss = ev.fit_loss(trial, data)
-                calib.append({"base": trial.base, "fit_loss": loss})
-                if loss < best:
-                    best, base = loss, trial
+    base, calib = calibrate(sims, ev, pool, data) if opt.calibrate else (Extension(), [])
     timing["calibrate"] = time.perf_counter() - t
 
     # 2. what is wrong
