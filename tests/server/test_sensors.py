@@ -16,6 +16,7 @@ from liquidtwin.sensors import (
     TEXTURE_KINDS, MaskNoise, PoseNoise, RGBParams, SensorInputError, TextureParams, corrupt_mask,
     dropped_frames, noisy_poses, render_texture, synth_rgb,
 )
+from liquidtwin.recordings._interp import smooth_poses
 
 # --------------------------------------------------------------------------- helpers
 
@@ -233,6 +234,53 @@ def test_zero_noise_is_identity_and_bias_shifts():
     out = noisy_poses(true, rng, PoseNoise.NONE, rot_bias_rad=rb)
     w = _rotvec(_rotmat(out[..., 3:]) @ np.swapaxes(_rotmat(true[..., 3:]), -1, -2))
     assert np.allclose(w, rb, atol=1e-9)
+
+
+def _tilt_series(t, rate=0.8):
+    """A cup sliding at constant velocity while tilting at a constant rate about y: (T, 7)."""
+    pos = np.stack([0.1 + 0.2 * t, -0.05 * t, np.full(len(t), 0.3)], 1)
+    q = np.stack([np.zeros(len(t)), np.sin(rate * t / 2), np.zeros(len(t)), np.cos(rate * t / 2)], 1)
+    return np.concatenate([pos, q], 1)
+
+
+def _angle_deg(qa, qb):
+    return np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(qa * qb, -1)), -1, 1)))
+
+
+def test_smoothing_keeps_motion_linear_in_time():
+    t = np.arange(0, 3, 1 / 60)
+    p = _tilt_series(t)
+    s = smooth_poses(t, p, 0.05)
+    assert np.abs(s[:, :3] - p[:, :3]).max() < 1e-12          # linear translation, edges included
+    assert _angle_deg(s[:, 3:], p[:, 3:]).max() < 0.01        # a constant-rate tilt (quaternions curve)
+    assert np.array_equal(smooth_poses(t, p, 0.0), p)
+
+
+def test_smoothing_takes_the_tracker_jitter_out_of_velocities():
+    t = np.arange(0, 3, 1 / 60)
+    true = np.stack([_tilt_series(t), _tilt_series(t, -0.5)], 1)              # (T, 2, 7)
+    noisy = noisy_poses(true, np.random.default_rng(3), drift_m=0.0, drift_rad=0.0)
+    s = smooth_poses(t, noisy, 0.05)
+    assert s.shape == true.shape
+    v = lambda x: np.diff(x[..., :3], axis=0) * 60                           # noqa: E731
+    assert (v(s) - v(true)).std() < 0.1 * (v(noisy) - v(true)).std()         # 18x measured
+    assert (s[..., :3] - true[..., :3]).std() < 0.4 * (noisy[..., :3] - true[..., :3]).std()
+    w = lambda q: _rotvec(_rotmat(q[1:]) @ np.swapaxes(_rotmat(q[:-1]), -1, -2)) * 60  # noqa: E731
+    assert (w(s[..., 3:]) - w(true[..., 3:])).std() < 0.1 * (w(noisy[..., 3:]) - w(true[..., 3:])).std()
+
+
+def test_smoothing_handles_quaternion_signs_and_gaps():
+    t = np.concatenate([np.arange(0, 1, 1 / 60), [2.0], np.arange(3, 4, 1 / 60)])   # a lone sample
+    p = _tilt_series(t)
+    noisy = noisy_poses(p, np.random.default_rng(5))
+    flipped = noisy.copy()
+    flipped[::3, 3:] *= -1                           # the same rotations, some signs flipped
+    a, b = smooth_poses(t, noisy, 0.05), smooth_poses(t, flipped, 0.05)
+    signs = np.where(np.arange(len(t))[:, None] % 3 == 0, -1, 1)
+    assert np.allclose(b[:, 3:], signs * a[:, 3:], atol=1e-12)            # in the input's hemisphere
+    assert np.allclose(a[:, :3], b[:, :3]) and np.allclose(np.linalg.norm(a[:, 3:], axis=1), 1)
+    lone = len(np.arange(0, 1, 1 / 60))
+    assert np.array_equal(a[lone], noisy[lone])        # nothing within 4 σ: kept as it is
 
 
 def test_pose_drift_is_slow_with_the_stated_std():

@@ -30,6 +30,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="processes running the model evaluations (default: this machine's cores, at most 4; "
                         "the workers run the serial searches, one torch thread each: the report is the one "
                         "--jobs 1 gives on one thread)")
+    p.add_argument("--extra-iterations", type=int, default=None, metavar="K",
+                   help="solver iterations added to the recordings' stated count (default 2: a real liquid is "
+                        "incompressible; an under-converged model biases drag and viscosity fits)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -38,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         opt = Options(camera=args.camera, candidates=tuple(args.candidates), block_s=args.block,
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
-                      jobs=args.jobs)
+                      jobs=args.jobs, **({} if args.extra_iterations is None else
+                                         {"extra_iterations": args.extra_iterations}))
         report = analyse(args.recordings, args.out, options=opt, progress=not args.no_progress)
     except (ValueError, OSError) as exc:
         print(f"liquidtwin discrepancy: {exc}", file=sys.stderr)

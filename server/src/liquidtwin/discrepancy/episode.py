@@ -3,6 +3,11 @@
 An :class:`Episode` is a recording reduced to the data the analysis may use — the scene it
 states, the object poses, one camera's stated calibration and its liquid masks — on a session
 clock (first pose sample = 0 s). Truth sidecars are never opened here.
+
+The poses are smoothed on loading (:data:`POSE_SMOOTHING_S`): the analysis is offline, so a
+zero-phase filter costs no lag, and a tracker's white jitter, differenced by the simulator
+into container velocities, shakes the model's liquid — energy that drag and viscosity fits
+would then take out (measured: README, "Discrepancy discovery").
 """
 
 from __future__ import annotations
@@ -16,7 +21,12 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..camera import Camera
 from ..recordings import read_recording
-from ..recordings._interp import interpolate_poses
+from ..recordings._interp import interpolate_poses, smooth_poses
+
+#: σ (s) of the zero-phase, local-linear Gaussian smoothing of the recorded poses
+#: (``recordings._interp.smooth_poses``): 3 samples of a 60 Hz tracker, well below the time
+#: scale of a pour's motions; motion linear in time passes unchanged.
+POSE_SMOOTHING_S = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,9 +69,10 @@ def camera_from_info(info, name: str = "camera") -> Camera:
                   distortion=torch.tensor(np.asarray(info.D, float)), name=name)
 
 
-def load_episode(source, camera: str | None = None) -> Episode:
+def load_episode(source, camera: str | None = None, smoothing_s: float = POSE_SMOOTHING_S) -> Episode:
     """An :class:`Episode` from an MCAP path or a Recording (``camera``: default the first
-    with masks). Raises ValueError when the recording cannot be analysed."""
+    with masks; ``smoothing_s``: the poses' smoothing σ, 0 for the raw poses). Raises
+    ValueError when the recording cannot be analysed."""
     rec = read_recording(source, images=False) if isinstance(source, (str, Path)) else source
     if rec.spec is None:
         raise ValueError(f"{rec.path}: no /scene in the recording; the model cannot be built")
@@ -78,6 +89,7 @@ def load_episode(source, camera: str | None = None) -> Episode:
     if not keep.any():
         raise ValueError(f"{rec.path}: no mask of camera {camera!r} lies within the pose samples")
     info = rec.camera_at(camera, int(stamps[keep][0]))
+    pose_t = (rec.pose_times_ns - t0) * 1e-9
     return Episode(Path(rec.path), pb.SessionSpec(scene=rec.spec), tuple(rec.object_names),
-                   (rec.pose_times_ns - t0) * 1e-9, np.asarray(rec.poses, float), camera_from_info(info, camera),
+                   pose_t, smooth_poses(pose_t, np.asarray(rec.poses, float), smoothing_s), camera_from_info(info, camera),
                    (stamps[keep] - t0) * 1e-9, np.asarray(masks[keep], bool))

@@ -22,14 +22,14 @@ import multiprocessing as mp
 _EV = None
 
 
-def _init(eps, frames) -> None:
+def _init(eps, frames, extra_iterations) -> None:
     global _EV
     import torch
 
     from .analysis import _Evaluator
     from .rollout import Simulator
     torch.set_num_threads(1)
-    _EV = _Evaluator([Simulator(e) for e in eps], None)
+    _EV = _Evaluator([Simulator(e, extra_iterations=extra_iterations) for e in eps], None)
     _EV.restrict(frames)
 
 
@@ -62,9 +62,10 @@ def _run(task) -> tuple:
 class Workers:
     """``jobs`` spawned processes evaluating for the analysis's :class:`_Evaluator` ``ev``."""
 
-    def __init__(self, ev, eps, frames, jobs: int):
+    def __init__(self, ev, eps, frames, jobs: int, extra_iterations: int = 0):
         self.ev = ev
-        self.pool = mp.get_context("spawn").Pool(jobs, initializer=_init, initargs=(list(eps), list(frames)))
+        self.pool = mp.get_context("spawn").Pool(jobs, initializer=_init,
+                                                 initargs=(list(eps), list(frames), extra_iterations))
 
     def _map(self, tasks: list) -> list:
         out = []

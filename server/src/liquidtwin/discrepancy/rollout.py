@@ -13,10 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..camera import sphere_coverage, sphere_radius_px, visible
 from ..generate.catalog import source_sites
 from ..scenes.fill import fill_container
+from ..scenes.spec import simulation_settings
 from ..session._build import SETTLE_S, build_scene
 from ..session._cull import cull_fallen
 from ..session.engine import MIN_RADIUS_PX, NEAR_M, OCCLUSION_MARGIN_PX
@@ -40,11 +42,18 @@ class Trajectory:
 
 
 class Simulator:
-    """The episode's scene, built once; rollouts of any extension of its model."""
+    """The episode's scene, built once; rollouts of any extension of its model.
+    ``extra_iterations``: solver iterations added to the recording's stated count (the fill
+    is settled with them too)."""
 
-    def __init__(self, ep: Episode, *, progress: bool = False):
+    def __init__(self, ep: Episode, *, progress: bool = False, extra_iterations: int = 0):
         self.ep = ep
-        self.scene = build_scene(ep.spec, progress=progress)
+        spec = ep.spec
+        if extra_iterations:
+            spec = pb.SessionSpec()
+            spec.CopyFrom(ep.spec)
+            spec.scene.simulation.iterations = int(simulation_settings(ep.spec.scene)["iterations"]) + extra_iterations
+        self.scene = build_scene(spec, progress=progress)
         self.model = self.scene.model
         self.dt = float(self.model.dt)
         self.radius_m = particle_radius(float(self.model.spacing))
