@@ -250,10 +250,25 @@ def _angle_deg(qa, qb):
 def test_smoothing_keeps_motion_linear_in_time():
     t = np.arange(0, 3, 1 / 60)
     p = _tilt_series(t)
-    s = smooth_poses(t, p, 0.05)
+    s = smooth_poses(t, p, 0.05, clip=None)                    # the local line alone, unclipped
     assert np.abs(s[:, :3] - p[:, :3]).max() < 1e-12          # linear translation, edges included
     assert _angle_deg(s[:, 3:], p[:, 3:]).max() < 0.01        # a constant-rate tilt (quaternions curve)
     assert np.array_equal(smooth_poses(t, p, 0.0), p)
+
+
+def test_smoothing_changes_a_sharp_corner_no_more_than_the_noise():
+    t = np.arange(0, 2, 1 / 60)
+    x = np.where(t < 1.0, 0.0, 0.8 * (t - 1.0))                # at rest, then 0.8 m/s at once
+    p = np.zeros((len(t), 7))
+    p[:, 0], p[:, 6] = x, 1.0
+    assert np.abs(smooth_poses(t, p, 0.05, clip=None)[:, 0] - x).max() > 3e-3   # the line cuts the corner
+    assert np.abs(smooth_poses(t, p, 0.05)[:, 0] - x).max() < 1e-9              # noise-free: kept
+    noisy = noisy_poses(p, np.random.default_rng(2), drift_m=0.0, drift_rad=0.0)
+    s = smooth_poses(t, noisy, 0.05)
+    assert np.abs(s[:, 0] - noisy[:, 0]).max() <= 3.0 * 1.3 * PoseNoise().pos_sigma_m   # clip at 3 noise levels
+    away = np.abs(t - 1.0) > 0.25                                # beyond the corner's 4 σ reach
+    rms = lambda e: np.sqrt(np.mean(e[away] ** 2))                              # noqa: E731
+    assert rms(s[:, 0] - x) < 0.5 * rms(noisy[:, 0] - x)
 
 
 def test_smoothing_takes_the_tracker_jitter_out_of_velocities():

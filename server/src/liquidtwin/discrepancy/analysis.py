@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 
 from ..sensors.masks import MaskNoise, corrupt_mask
 from .candidates import COARSE, FINE, LIBRARY, fit_candidate, main_value
-from .episode import load_episode
+from .episode import POSE_SMOOTHING_S, load_episode
 from .evidence import evidence
 from .corrections import correction_evidence, fit_learned, pooled, tracker_corrections
 from .model import CANDIDATES, Extension, learned_params
@@ -73,7 +73,8 @@ class Options:
     bootstrap: resamples for the intervals; seed: of the null realisations and resampling;
     jobs: processes that run the model evaluations (``parallel``; the report of 1 job on one
     torch thread); extra_iterations: solver iterations added to the recordings' stated count
-    (:data:`EXTRA_ITERATIONS`)."""
+    (:data:`EXTRA_ITERATIONS`); pose_smoothing_s: σ of the recorded poses' zero-phase
+    smoothing, s (``episode.POSE_SMOOTHING_S``; 0: the raw poses)."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -85,6 +86,7 @@ class Options:
     seed: int = 0
     jobs: int = 1
     extra_iterations: int = EXTRA_ITERATIONS
+    pose_smoothing_s: float = POSE_SMOOTHING_S
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -99,6 +101,8 @@ class Options:
         if isinstance(self.extra_iterations, bool) or not isinstance(self.extra_iterations, int) \
                 or not 0 <= self.extra_iterations <= 20:
             raise ValueError(f"extra_iterations must be a whole number in [0, 20], got {self.extra_iterations!r}")
+        if not 0 <= self.pose_smoothing_s <= 1:
+            raise ValueError(f"pose_smoothing_s must be in [0, 1] s, got {self.pose_smoothing_s!r}")
 
 
 @dataclass
@@ -301,7 +305,7 @@ def prepare(sources: list, opt: Options, bar=None) -> tuple:
     """Load the recordings and build what every stage evaluates with: (episodes, their
     Simulators, the _Evaluator restricted to the informative frames, those frames per
     episode, the fit / held-out split and its description, the worker pool or None)."""
-    eps = [load_episode(s, opt.camera) for s in sources]
+    eps = [load_episode(s, opt.camera, opt.pose_smoothing_s) for s in sources]
     sims = [Simulator(e, extra_iterations=opt.extra_iterations) for e in eps]
     ev = _Evaluator(sims, bar)
     # Frames where neither the recording nor the stated model shows liquid say nothing.

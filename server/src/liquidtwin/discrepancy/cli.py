@@ -33,6 +33,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--extra-iterations", type=int, default=None, metavar="K",
                    help="solver iterations added to the recordings' stated count (default 2: a real liquid is "
                         "incompressible; an under-converged model biases drag and viscosity fits)")
+    p.add_argument("--pose-smoothing", type=float, default=None, metavar="S",
+                   help="σ of the zero-phase smoothing of the recorded poses, s (default 0.05; 0: raw poses)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -41,8 +43,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         opt = Options(camera=args.camera, candidates=tuple(args.candidates), block_s=args.block,
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
-                      jobs=args.jobs, **({} if args.extra_iterations is None else
-                                         {"extra_iterations": args.extra_iterations}))
+                      jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
+                                                            ("pose_smoothing_s", args.pose_smoothing)) if v is not None})
         report = analyse(args.recordings, args.out, options=opt, progress=not args.no_progress)
     except (ValueError, OSError) as exc:
         print(f"liquidtwin discrepancy: {exc}", file=sys.stderr)
