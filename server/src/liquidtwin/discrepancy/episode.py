@@ -21,12 +21,7 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..camera import Camera
 from ..recordings import read_recording
-from ..recordings._interp import interpolate_poses, smooth_poses
-
-#: σ (s) of the zero-phase, local-linear Gaussian smoothing of the recorded poses
-#: (``recordings._interp.smooth_poses``): 3 samples of a 60 Hz tracker, well below the time
-#: scale of a pour's motions; motion linear in time passes unchanged.
-POSE_SMOOTHING_S = 0.05
+from ..recordings._interp import POSE_SMOOTHING_S, interpolate_poses, smooth_poses
 
 
 @dataclass(frozen=True, eq=False)

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+#: σ (s) of the zero-phase smoothing offline analyses apply to recorded poses
+#: (:func:`smooth_poses`): 3 samples of a 60 Hz tracker, well below the time scale of a pour's
+#: motions.
+POSE_SMOOTHING_S = 0.05
+
 
 def _slerp(q0: np.ndarray, q1: np.ndarray, a: np.ndarray) -> np.ndarray:
     """Shortest-arc slerp between rows of (M, 4) unit quaternions at fractions a (M,)."""
