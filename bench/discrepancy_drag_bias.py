@@ -12,7 +12,8 @@ truth sidecar: a diagnostic, not the blind analysis), so the calibration plays n
 coefficient is rolled out ``--realisations`` times (the first from the settled fill, the
 others with 1 mm/s of initial-velocity jitter) and its mean fitting loss is what the analysis
 would minimise. ``--sensors clean`` writes the recording without pose and mask noise;
-``no-pose-noise`` without pose noise only (the generator's pose noise replaced by none here).
+``no-pose-noise`` without pose noise only (the generator's pose noise replaced by none here),
+``no-pose-drift`` with the white pose jitter but without its slow drift.
 Appends one record to bench/results/discrepancy_drag_bias.jsonl.
 """
 
@@ -34,7 +35,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--extra-iterations", type=int, default=2, help="solver iterations added to the stated count")
     p.add_argument("--smoothing", type=float, default=0.05, help="σ of the pose smoothing, s (0: raw poses)")
-    p.add_argument("--sensors", choices=("noisy", "clean", "no-pose-noise"), default="noisy")
+    p.add_argument("--sensors", choices=("noisy", "clean", "no-pose-noise", "no-pose-drift"), default="noisy")
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--full", action="store_true", help="the full-size scene (default: quick)")
     p.add_argument("--values", default="0,2,3,4,5,6,8", help="drag coefficients, 1/m")
@@ -50,9 +51,10 @@ def main() -> None:
     from liquidtwin.discrepancy.model import Extension
     from liquidtwin.discrepancy.residuals import cell_metrics, coarse
     from liquidtwin.sensors.poses import PoseNoise
-    if args.sensors == "no-pose-noise":
+    if args.sensors in ("no-pose-noise", "no-pose-drift"):
         noisy = gen.noisy_poses
-        gen.noisy_poses = lambda poses, rng, noise=None: noisy(poses, rng, PoseNoise.NONE)
+        keep = PoseNoise.NONE if args.sensors == "no-pose-noise" else PoseNoise(drift_m=0.0, drift_rad=0.0)
+        gen.noisy_poses = lambda poses, rng, noise=None: noisy(poses, rng, keep)
     values = [float(v) for v in args.values.split(",")]
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
@@ -90,16 +92,21 @@ def main() -> None:
 
 
 def _table() -> None:
+    """One row per record: mean fitting loss per coefficient, the lowest, and the analysis's
+    own estimator on those means (``candidates._vertex``: a parabola in log c through the
+    lowest and up to two points each side)."""
+    from liquidtwin.discrepancy.candidates import _vertex
     recs = [json.loads(line) for line in RESULTS.read_text().splitlines() if line.strip()]
     cs = sorted({r["c"] for rec in recs for r in rec["rows"]})
-    print("| sensors | pose smoothing, s | model / world iterations | " + " | ".join(f"c={c:g}" for c in cs)
-          + " | lowest at (planted) |")
-    print("|---" * (len(cs) + 4) + "|")
+    print("| seed | sensors | pose smoothing, s | model / world iterations | " + " | ".join(f"c={c:g}" for c in cs)
+          + " | lowest at | parabola | planted |")
+    print("|---" * (len(cs) + 7) + "|")
     for rec in recs:
         by = {r["c"]: r["mean"] for r in rec["rows"]}
-        print(f"| {rec['sensors']} | {rec['smoothing_s']:g} | {rec['model_iterations']} / {rec['world_iterations']} | "
-              + " | ".join(f"{by[c]:.3f}" if c in by else "" for c in cs)
-              + f" | {rec['argmin']:g} ({rec['planted']:.2f}) |")
+        v = _vertex([(c, m) for c, m in by.items() if c > 0], log=True)
+        print(f"| {rec['seed']} | {rec['sensors']} | {rec['smoothing_s']:g} | {rec['model_iterations']} / "
+              f"{rec['world_iterations']} | " + " | ".join(f"{by[c]:.3f}" if c in by else "" for c in cs)
+              + f" | {rec['argmin']:g} | {'—' if v is None else f'{v:.2f}'} | {rec['planted']:.2f} |")
 
 
 if __name__ == "__main__":
