@@ -4,10 +4,7 @@ Time is handled as a session engine handles it (``SessionEngine.advance``): sess
 the pose stamp minus the first; between two pose samples the simulation takes whole dt steps
 with the object poses interpolated (lerp/slerp) from the previous sample to the new one, the
 sub-step remainder carried over. A mask stamped with a pose sample's time is scored (and,
-closed loop, corrects the bank) right after that sample's steps. Unlike a live session, the
-scoring sees the whole recording, so the poses are first smoothed without lag
-(``recordings._interp.smooth_poses``): a tracker's jitter, differenced into wall velocities,
-would shake every hypothesis's liquid and pour more of it than the world pours.
+closed loop, corrects the bank) right after that sample's steps.
 """
 
 from __future__ import annotations
@@ -20,7 +17,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ..camera import Camera
-from ..recordings._interp import POSE_SMOOTHING_S, interpolate_poses, smooth_poses
+from ..recordings._interp import interpolate_poses
 from .bank import Bank
 from .likelihood import DELTA, SLACK_PX, Posterior, frame_log_likelihood
 
@@ -46,24 +43,22 @@ def pick_camera(rec, camera: str | None) -> str:
 
 
 def score(bank: Bank, rec, dt: float, *, camera: str, frames: int | None = None, delta: float = DELTA,
-          slack_px: float = SLACK_PX, progress: bool = False, pose_smoothing_s: float = POSE_SMOOTHING_S,
+          slack_px: float = SLACK_PX, progress: bool = False,
           desc: str = "hypotheses") -> tuple[np.ndarray, np.ndarray]:
     """Run ``bank`` over ``rec``; returns (per-frame log likelihoods (T, K), frame times (T,) s).
-    ``slack_px``: the likelihood's slack at 640×480 (:mod:`.likelihood`; 0: SPEC's exact pixels);
-    ``pose_smoothing_s``: σ of the poses' zero-phase smoothing (0: the raw poses)."""
+    ``slack_px``: the likelihood's slack at 640×480 (:mod:`.likelihood`; 0: SPEC's exact pixels)."""
     stamps, masks = rec.masks[camera]
     times = np.asarray(rec.pose_times_ns, np.int64)
     n = len(times) if frames is None else min(int(frames), len(times))
     t0 = int(times[0])
-    poses = smooth_poses((times - t0) * 1e-9, np.asarray(rec.poses, np.float64), pose_smoothing_s)
-    prev = poses[0]
+    prev = np.asarray(rec.poses[0], np.float64)
     bank.start(torch.as_tensor(prev))
     sim_t, prev_t = 0.0, 0.0
     lls, ts = [], []
     bar = tqdm(total=n, desc=desc, unit="pose", disable=not progress, leave=False)
     for i in range(n):
         t = (int(times[i]) - t0) * 1e-9
-        new = poses[i]
+        new = np.asarray(rec.poses[i], np.float64)
         steps = max(0, int(math.floor((t - sim_t) / dt + 1e-6)))
         if steps:
             span = t - prev_t

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: σ (s) of the zero-phase smoothing offline analyses apply to recorded poses
+#: σ (s) of the zero-phase smoothing the discrepancy analysis applies to recorded poses
 #: (:func:`smooth_poses`): 3 samples of a 60 Hz tracker, well below the time scale of a pour's
 #: motions.
 POSE_SMOOTHING_S = 0.05
