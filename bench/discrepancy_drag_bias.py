@@ -3,8 +3,9 @@ realisations, for one setting of the model's solver iterations, the pose smoothi
 sensors.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/discrepancy_drag_bias.py [--extra-iterations 2] \
-        [--smoothing 0.05] [--sensors noisy|clean|no-pose-noise] [--seed 4] [--full]
+        [--smoothing 0.05] [--sensors noisy|clean|no-pose-noise|no-pose-drift] [--seed 4] [--full]
     .venv/bin/python bench/discrepancy_drag_bias.py --table       # every record so far, as a table
+    .venv/bin/python bench/discrepancy_drag_bias.py --pose-error  # the recording's pose velocity error only
 
 The recording: ``pour_partial`` (cup 90 %, quick unless ``--full``) with a drag planted (its
 value drawn from the seed). The model runs with the *world's* fluid parameters (read from the
@@ -41,6 +42,8 @@ def main() -> None:
     p.add_argument("--values", default="0,2,3,4,5,6,8", help="drag coefficients, 1/m")
     p.add_argument("--realisations", type=int, default=4)
     p.add_argument("--table", action="store_true", help="print the records so far and exit")
+    p.add_argument("--pose-error", action="store_true",
+                   help="print the velocity error of the raw and the smoothed poses against the true ones and exit")
     args = p.parse_args()
     if args.table:
         return _table()
@@ -62,6 +65,8 @@ def main() -> None:
         g = gen.generate("pour_partial", rec, effects=[("drag", None)], seed=args.seed, quick=not args.full,
                          noise=args.sensors != "clean", choices={"source": "cup", "fraction": 0.9})
         truth = json.loads(g.truth.read_text())
+        if args.pose_error:
+            return _pose_error(rec, g.truth.with_suffix(".npz"), args.smoothing)
         opt = Options(extra_iterations=args.extra_iterations, pose_smoothing_s=args.smoothing)
         _, sims, _, frames, data, _, _ = prepare([rec], opt)
         sim, f, obs, fit = sims[0], frames[0], data.cells[0], data.fit[0]
@@ -89,6 +94,21 @@ def main() -> None:
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     with RESULTS.open("a") as fh:
         fh.write(json.dumps(record) + "\n")
+
+
+def _pose_error(rec: Path, truth_npz: Path, smoothing: float) -> None:
+    """RMS error of the moving object's linear velocity and angular speed (finite differences
+    between pose samples) in the recording, raw and smoothed, against the true poses."""
+    from liquidtwin.discrepancy.episode import load_episode
+    true = np.load(truth_npz)["true_poses"]
+    for label, s in (("raw", 0.0), (f"smoothed, sigma {smoothing:g} s", smoothing)):
+        ep = load_episode(rec, smoothing_s=s)
+        k = int(np.argmax(np.abs(np.diff(true[..., :3], axis=0)).sum((0, 2))))    # the object that moves most
+        dt = np.diff(ep.pose_t)[:, None]
+        v = lambda P: np.diff(P[:, k, :3], axis=0) / dt                            # noqa: E731
+        w = lambda P: 2 * np.arccos(np.clip(np.abs((P[1:, k, 3:] * P[:-1, k, 3:]).sum(-1)), 0, 1)) / dt[:, 0]  # noqa: E731
+        print(f"{label:24s} velocity error {np.sqrt(((v(ep.poses) - v(true)) ** 2).mean()):.3f} m/s, "
+              f"angular speed error {np.sqrt(((w(ep.poses) - w(true)) ** 2).mean()):.2f} rad/s")
 
 
 def _table() -> None:
