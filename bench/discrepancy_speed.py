@@ -10,7 +10,7 @@ number of model evaluations, the decision with its fitted value beside the plant
 and the peak resident memory of this process and, with ``--jobs`` > 1, of the largest worker
 (each holds its own simulators). The issue's target: a 10-second single-camera recording in
 under 10 minutes on 2 cores (the full ``pour_partial`` lasts 8.5 s). Appends one record to
-bench/history.jsonl.
+bench/history.jsonl; ``--out`` keeps the report.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ def main() -> None:
     p.add_argument("--effect", default="drag", help="planted effect (NAME or NAME=VALUE; 'none' for none)")
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--jobs", type=int, default=1, help="processes running the model evaluations (default 1)")
+    p.add_argument("--out", type=Path, help="keep the report (report.json, report.md, plots) in this folder")
     args = p.parse_args()
     from liquidtwin.discrepancy import Options, analyse
     from liquidtwin.generate import generate
@@ -51,7 +52,7 @@ def main() -> None:
         g = generate(args.scene, rec, effects=effects, seed=args.seed, quick=args.quick,
                      choices={"source": "cup", "fraction": 0.9})
         t0 = time.perf_counter()
-        report = analyse([rec], Path(d) / "out", options=Options(jobs=args.jobs), progress=True)
+        report = analyse([rec], args.out or Path(d) / "out", options=Options(jobs=args.jobs), progress=True)
         wall = time.perf_counter() - t0
         truth = json.loads(g.truth.read_text())      # read for scoring, after the analysis
     dur = report["_series"]["t"][0]
@@ -62,6 +63,9 @@ def main() -> None:
               "fitted": next((c["value"] for c in report["candidates"] if c["name"] == report["decision"]), None),
               "planted": truth["effect"],
               "null_fitted": [c["name"] for c in report["candidates"] if "null_gains" in c],
+              "residual_real": report["null"]["residual_real"],
+              "ranked": [{"name": c["name"], "value": c["value"], "gain": round(c["heldout_gain"]["mean"], 4),
+                          "ci95": [round(x, 4) for x in c["heldout_gain"]["ci95"]]} for c in report["candidates"][:3]],
               "informative_frames_s": [round(dur[0], 3), round(dur[-1], 3)] if dur else None,
               "jobs": args.jobs, "peak_mem_bytes": _vm_hwm(),
               "peak_worker_mem_bytes": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 if args.jobs > 1 else None,

@@ -6,17 +6,23 @@
 2. Calibrate the base model's λ_v and λ_c on the fitting frames.
 3. Show what is wrong: the base model's residuals (per-frame IOU and coarse loss, where the
    liquid is missing or extra, mass over time) and their structure (``evidence``).
-4. Is there anything to explain? ``null_runs`` realisations of the fitted base model (other
-   initial jitter, mask noise): if the base model misses the recording by no more than
-   ``RESIDUAL_FACTOR`` × what it misses its own realisations by, the answer is ``none``.
-5. Name the cause: fit every candidate of the library coarsely on the fitting frames; when
-   the residual is real, refit the ``top`` best (lowest fitting loss) finely; rank them by
-   their gain on the held-out frames (95 % interval by resampling held-out blocks).
+4. Is the residual real? ``null_runs`` realisations of the fitted base model (other initial
+   jitter, mask noise): the residual is real when the base model misses the recording by more
+   than ``RESIDUAL_FACTOR`` × what it misses its own realisations by. A pour is chaotic — two
+   realisations of one model can differ by as much as a planted drag moves the loss — so this
+   comparison of one recording with two realisations has little power. It no longer stops the
+   search (it called a planted drag ``none``; README, "Discrepancy discovery"); it sets how
+   strict the null check is (6), and labels the outcome when nothing is declared.
+5. Name the cause: fit every candidate of the library coarsely on the fitting frames, refit
+   the ``top`` best (lowest fitting loss) finely, and rank them by their gain on the held-out
+   frames (95 % interval by resampling held-out blocks).
 6. Guard against false discovery: in ranked order, a candidate whose held-out gain interval
    is above zero is fitted again on the null realisations, and declared when its gain exceeds
-   ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN``; the first declared is the decision (the
-   ones after it are not checked). When none is, the residual is ``unexplained`` and a
-   minimum-norm learned correction is fitted instead.
+   ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN`` (``declare``: the largest null gain when
+   the residual is real, the largest null gain's magnitude when it is not). The first declared
+   is the decision (the ones after it are not checked). When none is, the residual is
+   ``unexplained`` if it is real — and a minimum-norm learned correction is fitted instead —
+   else ``none``.
 
 Only the recordings are read; nothing here knows of truth sidecars.
 """
@@ -257,25 +263,30 @@ def declare(top: list, residual_real: bool, null_gains) -> dict | None:
     """Check the best few candidates ``top`` (ranked by held-out gain) against the null, in
     order, and return the first declared (or None). ``null_gains(c)`` fits candidate ``c`` on
     each null realisation and returns its held-out gains there (the expensive part). A
-    candidate is declared when the residual is real, its held-out gain interval is above zero
-    and its gain exceeds ``NULL_FACTOR`` × its best null gain + ``NULL_MARGIN``. Only the
-    candidates that can change the decision are fitted on the null: none when the residual is
-    not real, none whose interval reaches zero or whose gain is within the margin (no null can
-    declare them), none after the first declared. Each candidate gets ``declared`` and either
-    ``null_gains`` + ``null_threshold`` or ``null_skipped`` (why)."""
+    candidate is declared when its held-out gain interval is above zero and its gain exceeds
+    ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN``, where the null gain is the largest
+    null gain when the residual is real, and the largest null gain's *magnitude* when it is not:
+    then nothing but the candidate's own fit speaks for an effect, and a fit that moves the
+    held-out loss of nothing-hidden data by −g shows that chance moves it by about g either
+    way. Only the candidates that can change the decision are fitted on the null: none whose
+    interval reaches zero or whose gain is within the margin (no null can declare them), none
+    after the first declared; without null realisations (``null_gains`` returns none) nothing
+    is declared. Each candidate gets ``declared`` and either ``null_gains`` +
+    ``null_threshold`` or ``null_skipped`` (why)."""
     chosen = None
     for c in top:
         c["declared"] = False
         gain = c["heldout_gain"]
-        if not residual_real:
-            c["null_skipped"] = "the residual is not real"
-        elif chosen is not None:
+        if chosen is not None:
             c["null_skipped"] = f"{chosen['name']} ranks higher and is declared"
         elif not (gain["ci95"][0] > 0 and gain["mean"] > NULL_MARGIN):
             c["null_skipped"] = "its held-out gain interval reaches zero or the gain is within the margin"
+        elif not (gains := list(null_gains(c))):
+            c["null_skipped"] = "there are no null realisations (null_runs 0)"
         else:
-            c["null_gains"] = list(null_gains(c))
-            c["null_threshold"] = max(NULL_FACTOR * max(c["null_gains"]), 0.0) + NULL_MARGIN
+            c["null_gains"] = gains
+            scale = max(gains) if residual_real else max(abs(g) for g in gains)
+            c["null_threshold"] = max(NULL_FACTOR * scale, 0.0) + NULL_MARGIN
             c["declared"] = bool(gain["mean"] > c["null_threshold"])
             if c["declared"]:
                 chosen = c
@@ -389,7 +400,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         evid[name] = {**evid[name], "tracker": tracker}
     timing["tracker_corrections"] = time.perf_counter() - t
 
-    # 3. the null realisations: is there anything to explain? (decides how much fitting is worth)
+    # 3. the null realisations: is the residual real? (labels "unexplained" against "none")
     t = time.perf_counter()
     null_base, null_cells = [], []
     realisations = (pool.null_cells(opt.null_runs, opt.seed, base) if pool is not None else
@@ -426,15 +437,12 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         bar.set_postfix_str(name)
         ranked.append(scored(name, COARSE))
     ranked.sort(key=lambda c: c["fit_loss"])
-    # The best few by fitting loss are fitted finer (cached points are not re-simulated) — only
-    # when the residual is real: otherwise nothing can be declared, and the coarse fits are the
-    # record of what each candidate would have done.
-    if residual_real:
-        if pool is not None:
-            pool.fit([(c["name"], data.cells) for c in ranked[: opt.top]], FINE, base.base, data.fit)
-        for i in range(min(opt.top, len(ranked))):
-            bar.set_postfix_str(f"refine {ranked[i]['name']}")
-            ranked[i] = scored(ranked[i]["name"], FINE)
+    # The best few by fitting loss are fitted finer (cached points are not re-simulated).
+    if pool is not None:
+        pool.fit([(c["name"], data.cells) for c in ranked[: opt.top]], FINE, base.base, data.fit)
+    for i in range(min(opt.top, len(ranked))):
+        bar.set_postfix_str(f"refine {ranked[i]['name']}")
+        ranked[i] = scored(ranked[i]["name"], FINE)
     ranked.sort(key=lambda c: -c["heldout_gain"]["mean"])
     timing["fit"] = time.perf_counter() - t
 
