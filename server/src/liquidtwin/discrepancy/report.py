@@ -66,7 +66,8 @@ def markdown(report: dict) -> str:
               f"{report['null']['residual_factor']} × the largest: {'yes' if report['null']['residual_real'] else 'no'}; "
               "this decides `unexplained` against `none` when nothing is declared). "
               f"A candidate is declared when its gain's interval is above 0 and its gain exceeds "
-              f"{report['null']['factor']} × its best null gain + {report['null']['margin']}; the best few are fitted on the "
+              f"{report['null']['factor']} × its best null gain (its largest null gain's magnitude when the residual is not "
+              f"real) + {report['null']['margin']}; the best few are fitted on the "
               "null in ranked order until one is declared.", "",
               "Time per stage (s): " + ", ".join(f"{k} {v}" for k, v in report["timing_s"].items()), ""]
     return "\n".join(lines)
