@@ -185,6 +185,18 @@ def test_the_analysis_model_is_converged_further_and_driven_by_smoothed_poses(tm
     more = Simulator(raw, extra_iterations=2)
     assert more.model.iterations == stated.model.iterations + 2
     assert more.model.iterations == Options().extra_iterations + stated.model.iterations
+    # the null's redrawn poses: an error of the tracker's size, not of the motion's
+    level = raw.pose_noise
+    assert np.allclose(level, smooth.pose_noise) and 2e-4 < level[:, 0].min() and level[:, 0].max() < 2e-3
+    a = smooth.redrawn_poses(np.random.default_rng(0), 1.0, 1.5)
+    assert np.array_equal(a, smooth.redrawn_poses(np.random.default_rng(0), 1.0, 1.5))
+    err = np.abs(a[..., :3] - smooth.poses[..., :3])
+    assert 0.2 * level[:, 0].mean() < err.mean() < 3 * level[:, 0].mean()
+    steady = Simulator(smooth)
+    same = steady.rollout(Extension(), steps=20, poses=smooth.poses)
+    assert all(np.array_equal(x, y) for x, y in zip(same.x, steady.rollout(Extension(), steps=20).x))
+    moved = steady.rollout(Extension(), steps=20, poses=a)
+    assert np.abs(moved.poses - same.poses).max() > 1e-5 and np.abs(moved.x[-1] - same.x[-1]).max() > 0
 
 
 def _corrections(a_of_v, n=2000, seed=0):

@@ -16,7 +16,7 @@ from liquidtwin.sensors import (
     TEXTURE_KINDS, MaskNoise, PoseNoise, RGBParams, SensorInputError, TextureParams, corrupt_mask,
     dropped_frames, noisy_poses, render_texture, synth_rgb,
 )
-from liquidtwin.recordings._interp import smooth_poses
+from liquidtwin.recordings._interp import pose_noise_level, smooth_poses
 
 # --------------------------------------------------------------------------- helpers
 
@@ -507,3 +507,20 @@ def test_bad_input_raises_clear_value_errors():
         TextureParams(kind="marble")
     with pytest.raises(ValueError):
         RGBParams(light_dir=(0.0, 0.0))
+
+
+def test_pose_noise_level_reads_the_white_noise_off_a_moving_series():
+    """The tracker's white level per object, from the poses alone: the motion (a slide and a
+    tilt) does not count; a drift barely does (its second differences are tiny)."""
+    t = np.arange(0, 3, 1 / 60)
+    true = np.stack([_tilt_series(t), _tilt_series(t, -0.5)], 1)
+    for pos, rot in ((0.5e-3, np.radians(0.3)), (2e-3, np.radians(1.0))):
+        noisy = noisy_poses(true, np.random.default_rng(7), pos_sigma_m=pos, rot_sigma_rad=rot)
+        level = pose_noise_level(noisy)
+        assert level.shape == (2, 2)
+        assert np.allclose(level[:, 0], pos, rtol=0.15) and np.allclose(level[:, 1], rot, rtol=0.15)
+    clean = pose_noise_level(true)                            # noise-free motion: ~no noise
+    assert clean[:, 0].max() < 1e-12 and clean[:, 1].max() < 0.02 * np.radians(0.3)   # the tilt's curvature
+    assert np.array_equal(pose_noise_level(true[:2]), np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="K, n, 7"):
+        pose_noise_level(true[:, 0])

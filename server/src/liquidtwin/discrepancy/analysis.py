@@ -61,6 +61,17 @@ NULL_NOISE = MaskNoise(miss=0.05, false=1.5e-4, ragged_px=0.75, blob_px=4.0, spe
 KEEP_TRAJECTORIES = 4
 #: Initial-velocity jitter that makes a null realisation a different run of the same model, m/s.
 NULL_JITTER = 1e-3
+#: A null realisation's world also moves along the poses another run of the recording's tracker
+#: would give (``Episode.redrawn_poses``: white noise at the level estimated from the recording,
+#: a drift of this × that level, assumed — one recording cannot separate a drift from the
+#: motion — with this correlation time, s)…
+NULL_POSE_DRIFT = 1.0
+NULL_POSE_DRIFT_S = 1.5
+#: … and has λ_v, λ_c drawn uniformly within ± this share of the calibrated values: the
+#: calibration knows them only to its grid's step (``CALIBRATION_FACTORS``). Without these two
+#: the null is the model's own chaos only, and a nothing-hidden recording missed by 1.8× that
+#: read "unexplained" (README, "Discrepancy discovery": what the null missed).
+NULL_PARAM_SPREAD = 0.15
 #: Solver iterations the analysis adds to a recording's stated count. A session's count is what
 #: real time affords; a real liquid is incompressible, and an under-converged model reads as
 #: a springier liquid that drag and viscosity fits then damp (README, "Discrepancy discovery":
@@ -80,7 +91,9 @@ class Options:
     jobs: processes that run the model evaluations (``parallel``; the report of 1 job on one
     torch thread); extra_iterations: solver iterations added to the recordings' stated count
     (:data:`EXTRA_ITERATIONS`); pose_smoothing_s: σ of the recorded poses' zero-phase
-    smoothing, s (``episode.POSE_SMOOTHING_S``; 0: the raw poses)."""
+    smoothing, s (``episode.POSE_SMOOTHING_S``; 0: the raw poses); null_vary: the null
+    realisations redraw the tracker's pose error and the calibrated λ (``_null_cells``; False:
+    the base model's own chaos and mask noise only, the null before stop 34)."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -93,6 +106,7 @@ class Options:
     jobs: int = 1
     extra_iterations: int = EXTRA_ITERATIONS
     pose_smoothing_s: float = POSE_SMOOTHING_S
+    null_vary: bool = True
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -293,15 +307,23 @@ def declare(top: list, residual_real: bool, null_gains) -> dict | None:
     return chosen
 
 
-def _null_cells(sims, frames, base: Extension, run: int, seed: int) -> list:
-    """Observed cells of one realisation of the fitted base model (noisy masks)."""
+def _null_cells(sims, frames, base: Extension, run: int, seed: int, vary: bool = True) -> list:
+    """Observed cells of one realisation of the fitted base model (noisy masks). ``vary``: the
+    realisation's world also moves along redrawn poses (``Episode.redrawn_poses``) and has its
+    λ_v, λ_c drawn within ``NULL_PARAM_SPREAD`` of the calibrated ones."""
     rng = np.random.default_rng([seed, run])
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
+    world = base
+    if vary:
+        stated = {"lambda_v": float(sims[0].model.params.lambda_v), "lambda_c": float(sims[0].model.params.lambda_c)}
+        world = Extension(base.name, base.params, {k: base.base.get(k, v) * (1.0 + rng.uniform(-1, 1) * NULL_PARAM_SPREAD)
+                                                   for k, v in stated.items()})
     out = []
     for s, f in zip(sims, frames):
         x0, v0 = s.initial(base.fill_scale)
         jitter = NULL_JITTER * torch.randn(v0.shape, generator=gen)
-        traj = s.rollout(base, initial=(x0, v0 + jitter))
+        poses = s.ep.redrawn_poses(rng, NULL_POSE_DRIFT, NULL_POSE_DRIFT_S) if vary else None
+        traj = s.rollout(world, initial=(x0, v0 + jitter), poses=poses)
         masks = s.render(traj, f, ext=base)
         out.append(coarse(np.stack([corrupt_mask(m, rng, NULL_NOISE) for m in masks])))
     return out
@@ -403,8 +425,8 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     # 3. the null realisations: is the residual real? (labels "unexplained" against "none")
     t = time.perf_counter()
     null_base, null_cells = [], []
-    realisations = (pool.null_cells(opt.null_runs, opt.seed, base) if pool is not None else
-                    [_null_cells(sims, frames, base, run, opt.seed) for run in range(opt.null_runs)])
+    realisations = (pool.null_cells(opt.null_runs, opt.seed, base, opt.null_vary) if pool is not None else
+                    [_null_cells(sims, frames, base, run, opt.seed, opt.null_vary) for run in range(opt.null_runs)])
     held_base, blocks = _held(base_loss, data)
     for cells in realisations:
         nb, _ = _held(ev.losses(base, cells), data)

@@ -21,7 +21,8 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..camera import Camera
 from ..recordings import read_recording
-from ..recordings._interp import POSE_SMOOTHING_S, interpolate_poses, smooth_poses
+from ..recordings._interp import POSE_SMOOTHING_S, interpolate_poses, pose_noise_level, smooth_poses
+from ..sensors.poses import PoseNoise, noisy_poses
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,9 +32,12 @@ class Episode:
     Attributes:
       path: the MCAP file. spec: its scene as a SessionSpec (stated fills, objects, sim).
       object_names: n objects in the scene's order.
-      pose_t: (T,) s pose sample times; poses: (T, n, 7) object → world poses.
+      pose_t: (T,) s pose sample times; poses: (T, n, 7) object → world poses (smoothed).
       camera: the stated :class:`Camera` the masks came from.
       frame_t: (M,) s mask times; masks: (M, H, W) bool observed liquid.
+      pose_noise: (n, 2) the tracker's white noise per object, estimated from the raw poses
+        (position std per axis m, rotation std per axis rad: ``pose_noise_level``).
+      smoothing_s: the σ the poses were smoothed with, s.
     """
 
     path: Path
@@ -44,16 +48,36 @@ class Episode:
     camera: Camera
     frame_t: np.ndarray
     masks: np.ndarray
+    pose_noise: np.ndarray
+    smoothing_s: float
 
     @property
     def duration_s(self) -> float:
         return float(self.pose_t[-1])
 
-    def poses_at(self, t: np.ndarray) -> np.ndarray:
-        """(len(t), n, 7) object poses at session times ``t`` s (lerp/slerp, held at the ends)."""
+    def poses_at(self, t: np.ndarray, poses: np.ndarray | None = None) -> np.ndarray:
+        """(len(t), n, 7) object poses at session times ``t`` s (lerp/slerp, held at the ends)
+        of the episode's pose series, or of another one ``poses`` on the same sample times."""
+        poses = self.poses if poses is None else poses
         ns = np.round(np.clip(np.asarray(t, float), 0.0, self.pose_t[-1]) * 1e9).astype(np.int64)
         times = np.round(self.pose_t * 1e9).astype(np.int64)
-        return np.stack([interpolate_poses(times, self.poses[:, j], ns) for j in range(self.poses.shape[1])], 1)
+        return np.stack([interpolate_poses(times, poses[:, j], ns) for j in range(poses.shape[1])], 1)
+
+    def redrawn_poses(self, rng: np.random.Generator, drift: float, drift_s: float) -> np.ndarray:
+        """(T, n, 7): the poses as another run of the same tracker could have reported them.
+        Fresh tracker noise — white at the level estimated from the recording
+        (``pose_noise``), plus a slow drift of ``drift`` × that level with correlation time
+        ``drift_s`` s (one recording cannot tell a drift from the motion, so its size is
+        assumed) — is added to the (smoothed) poses, and smoothed as on loading. The
+        difference from :attr:`poses` is an error of the size the model's own poses carry."""
+        rate = (len(self.pose_t) - 1) / max(self.duration_s, 1e-9)
+        out = np.empty_like(self.poses)
+        for j, (pos, rot) in enumerate(self.pose_noise):
+            pos, rot = min(float(pos), 0.1), min(float(rot), 0.5)           # PoseNoise's ranges
+            noise = PoseNoise(pos_sigma_m=pos, rot_sigma_rad=rot, drift_m=min(drift * pos, 0.1),
+                              drift_rad=min(drift * rot, 0.5), drift_frames=float(np.clip(drift_s * rate, 1.0, 1e6)))
+            out[:, j] = noisy_poses(self.poses[:, j], rng, noise)
+        return smooth_poses(self.pose_t, out, self.smoothing_s)
 
 
 def camera_from_info(info, name: str = "camera") -> Camera:
@@ -85,6 +109,7 @@ def load_episode(source, camera: str | None = None, smoothing_s: float = POSE_SM
         raise ValueError(f"{rec.path}: no mask of camera {camera!r} lies within the pose samples")
     info = rec.camera_at(camera, int(stamps[keep][0]))
     pose_t = (rec.pose_times_ns - t0) * 1e-9
+    raw = np.asarray(rec.poses, float)
     return Episode(Path(rec.path), pb.SessionSpec(scene=rec.spec), tuple(rec.object_names),
-                   pose_t, smooth_poses(pose_t, np.asarray(rec.poses, float), smoothing_s), camera_from_info(info, camera),
-                   (stamps[keep] - t0) * 1e-9, np.asarray(masks[keep], bool))
+                   pose_t, smooth_poses(pose_t, raw, smoothing_s), camera_from_info(info, camera),
+                   (stamps[keep] - t0) * 1e-9, np.asarray(masks[keep], bool), pose_noise_level(raw), float(smoothing_s))

@@ -36,7 +36,7 @@ def _init(eps, frames, extra_iterations) -> None:
 def _run(task) -> tuple:
     """One task in a worker: ("cells", ext, seed) draws one extension; ("fit", name, rounds,
     base, cells, fit, seed) runs ``fit_candidate`` against observed ``cells`` on the ``fit``
-    frames; ("null", run, seed_value, base, seed) draws one null realisation. ``seed``: cache
+    frames; ("null", run, seed_value, base, vary, seed) draws one null realisation. ``seed``: cache
     entries to start from. Returns (result, the entries computed here)."""
     from .analysis import _Data, _null_cells
     from .candidates import fit_candidate
@@ -52,8 +52,8 @@ def _run(task) -> tuple:
         ext, _, _ = fit_candidate(name, lambda e: ev.fit_loss(e, data), base, rounds, ev.upper(name))
         ev.cells(ext)
     elif kind == "null":
-        run, seed_value, base = args
-        result = _null_cells(ev.sims, ev.frames, base, run, seed_value)
+        run, seed_value, base, vary = args
+        result = _null_cells(ev.sims, ev.frames, base, run, seed_value, vary)
     else:
         raise ValueError(f"unknown task {kind!r}")
     return result, ev.take_fresh()
@@ -83,9 +83,9 @@ class Workers:
         ``fit`` frames (into the cache)."""
         self._map([("fit", n, rounds, dict(base), cells, fit, self.ev.entries(n)) for n, cells in searches])
 
-    def null_cells(self, runs: int, seed: int, base) -> list:
+    def null_cells(self, runs: int, seed: int, base, vary: bool = True) -> list:
         """:func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1."""
-        return self._map([("null", r, seed, base, {}) for r in range(runs)])
+        return self._map([("null", r, seed, base, vary, {}) for r in range(runs)])
 
     def close(self, abort: bool = False) -> None:
         """Wait for the workers to exit (``abort``: stop them now, e.g. after an error)."""

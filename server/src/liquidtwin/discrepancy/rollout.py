@@ -98,12 +98,14 @@ class Simulator:
         rep = self.scene.fills[self.source]
         return float(self.scene.objects[self.source_index].capacity_ml) / max(float(rep.asked_ml), 1e-9)
 
-    def rollout(self, ext: Extension, *, steps: int | None = None, initial=None) -> Trajectory:
+    def rollout(self, ext: Extension, *, steps: int | None = None, initial=None, poses=None) -> Trajectory:
         """Run ``ext``'s model open loop from its initial fill (or ``initial`` = (x, v)) through
-        the recorded poses."""
+        the recorded poses (or ``poses``: another (T, n, 7) series on the recording's pose
+        sample times)."""
         model = apply_physics(ext, self.model, self.sites)
         x0, v0 = self.initial(ext.fill_scale) if initial is None else initial
-        poses = torch.as_tensor(self.step_poses)
+        step_poses = self.step_poses if poses is None else self.ep.poses_at(np.arange(self.steps + 1) * self.dt, poses)
+        poses = torch.as_tensor(step_poses)
         state = make_state(x0, v0, poses=poses[0], dtype=torch.float32)
         n = self.steps if steps is None else min(steps, self.steps)
         xs = [state.by_id()[0].numpy().copy()]
@@ -112,7 +114,7 @@ class Simulator:
                 state = step(model, state, poses[k + 1].to(torch.float32))
                 state, _ = cull_fallen(state, model.objects)
                 xs.append(state.x.numpy().copy())
-        return Trajectory(xs, self.step_poses[: n + 1], self.dt, ext)
+        return Trajectory(xs, step_poses[: n + 1], self.dt, ext)
 
     def render(self, traj: Trajectory, frames=None, *, ext: Extension | None = None) -> np.ndarray:
         """(F, H, W) bool model masks at the episode's mask ``frames`` (indices, default all),

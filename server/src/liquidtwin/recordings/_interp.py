@@ -71,13 +71,9 @@ def smooth_poses(t: np.ndarray, poses: np.ndarray, sigma_s: float, clip: float =
     t = np.asarray(t, dtype=np.float64)
     p = np.asarray(poses, dtype=np.float64)
     squeeze = p.ndim == 2
-    y = (p[:, None, :] if squeeze else p).copy()
     if not sigma_s > 0 or len(t) < 2:
         return p.copy()
-    q = y[..., 3:] / np.linalg.norm(y[..., 3:], axis=-1, keepdims=True)
-    dots = np.sum(q[1:] * q[:-1], axis=-1)
-    sign = np.concatenate([np.ones((1,) + dots.shape[1:]), np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)])
-    y[..., 3:] = q * sign[..., None]
+    y = _continuous(p[:, None, :] if squeeze else p)
     reach = 4.0 * sigma_s
     lo = np.searchsorted(t, t - reach, side="left")
     hi = np.searchsorted(t, t + reach, side="right")
@@ -102,10 +98,42 @@ def smooth_poses(t: np.ndarray, poses: np.ndarray, sigma_s: float, clip: float =
     a = (s2[:, None, None] * sy - s1[:, None, None] * sty) / np.where(fit, det, 1.0)[:, None, None]
     out = np.where(fit[:, None, None], a, y)
     if len(t) >= 3 and clip is not None:
-        d2 = y[2:] - 2.0 * y[1:-1] + y[:-2]
-        noise = 1.4826 * np.median(np.abs(d2), axis=0) / np.sqrt(6.0)             # (n, 7)
+        noise = _white_level(y)
         out = y + np.clip(out - y, -clip * noise, clip * noise)
     qo = out[..., 3:] / np.linalg.norm(out[..., 3:], axis=-1, keepdims=True)
     ref = p[..., 3:] if not squeeze else p[:, None, 3:]
     out[..., 3:] = np.where(np.sum(qo * ref, axis=-1, keepdims=True) < 0, -qo, qo)
     return out[:, 0] if squeeze else out
+
+
+def _continuous(p: np.ndarray) -> np.ndarray:
+    """A (K, n, 7) copy with unit quaternions made sign-continuous along time."""
+    y = np.array(p, dtype=np.float64)
+    q = y[..., 3:] / np.linalg.norm(y[..., 3:], axis=-1, keepdims=True)
+    dots = np.sum(q[1:] * q[:-1], axis=-1)
+    sign = np.concatenate([np.ones((1,) + dots.shape[1:]), np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)])
+    y[..., 3:] = q * sign[..., None]
+    return y
+
+
+def _white_level(y: np.ndarray) -> np.ndarray:
+    """(n, 7) white-noise std per object and component of a (K ≥ 3, n, 7) series: 1.4826 ×
+    the median absolute second difference / √6 (``smooth_poses``)."""
+    d2 = y[2:] - 2.0 * y[1:-1] + y[:-2]
+    return 1.4826 * np.median(np.abs(d2), axis=0) / np.sqrt(6.0)
+
+
+def pose_noise_level(poses: np.ndarray) -> np.ndarray:
+    """(n, 2) white tracker-noise level of each object in a raw (K, n, 7) pose series: the
+    position std per axis, m, and the rotation std per axis, rad (estimated as in
+    ``smooth_poses``). A rotation vector e of per-axis std σ moves a unit quaternion's four
+    components by e/2 in total variance 3σ²/4, so σ = √(4/3 · Σ component variances).
+    Fewer than 3 samples: zeros (no estimate)."""
+    p = np.asarray(poses, dtype=np.float64)
+    if p.ndim != 3 or p.shape[-1] != 7:
+        raise ValueError(f"poses must be (K, n, 7), got {p.shape}")
+    if len(p) < 3:
+        return np.zeros((p.shape[1], 2))
+    lv = _white_level(_continuous(p))
+    return np.stack([np.sqrt(np.mean(lv[:, :3] ** 2, axis=1)),
+                     np.sqrt(4.0 / 3.0 * np.sum(lv[:, 3:] ** 2, axis=1))], 1)
