@@ -21,7 +21,7 @@ def test_two_worker_processes_give_the_serial_report(tmp_path):
     # a physics candidate (re-simulated in the workers) and an observation one (re-drawn); the
     # calibration's trials run in the workers, and the planted offset makes the residual real,
     # so the null fits run there too
-    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, bootstrap=200)
+    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, level_runs=3, bootstrap=200)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)           # as each worker: the same float rounding
     try:
@@ -32,6 +32,9 @@ def test_two_worker_processes_give_the_serial_report(tmp_path):
     assert serial["null"]["residual_real"], "the case must exercise the null fits"
     checked = [c for c in serial["candidates"] if c.get("null_gains")]
     assert checked and all(c.get("null_gains") or c.get("null_skipped") for c in serial["candidates"])
+    # the level is read off 3 realisations, the candidates are fitted on the first one only
+    assert serial["null"]["level_runs"] == len(serial["null"]["base_heldout_loss"]) == 3
+    assert all(len(c["null_gains"]) == 1 for c in checked)
     assert _comparable(parallel) == _comparable(serial)
     assert parallel["options"]["jobs"] == 2 and parallel["evaluations"] >= serial["evaluations"]
 

@@ -165,6 +165,9 @@ def test_options_are_checked():
     for bad in (-0.01, 1.5, float("nan")):
         with pytest.raises(ValueError, match="pose_smoothing_s"):
             Options(pose_smoothing_s=bad)
+    for bad in (-1, 65, True, 2.0):
+        with pytest.raises(ValueError, match="level_runs"):
+            Options(level_runs=bad)
 
 
 def test_the_analysis_model_is_converged_further_and_driven_by_smoothed_poses(tmp_path):

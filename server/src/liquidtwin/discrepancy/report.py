@@ -61,14 +61,15 @@ def markdown(report: dict) -> str:
     s = report["split"]
     lines += ["", "## Split", "", f"By {s['by']}: {s['fit_frames']} fitting frames, {s['held_out_frames']} held-out frames "
               "(frames where neither the recording nor the model shows liquid are left out).", "",
-              f"Null: {report['null']['runs']} realisations of the fitted base model; their base held-out loss "
+              f"Null: {report['null'].get('level_runs', report['null']['runs'])} realisations of the fitted base model "
+              "(the tracker's pose error redrawn, λ within the calibration's step); their base held-out loss "
               f"{_fmt(report['null']['base_heldout_loss'])} (the recording's: {b['heldout_loss']:.3f}; a residual is real above "
               f"{report['null']['residual_factor']} × the largest: {'yes' if report['null']['residual_real'] else 'no'}; "
               "this decides `unexplained` against `none` when nothing is declared). "
               f"A candidate is declared when its gain's interval is above 0 and its gain exceeds "
               f"{report['null']['factor']} × its best null gain (its largest null gain's magnitude when the residual is not "
-              f"real) + {report['null']['margin']}; the best few are fitted on the "
-              "null in ranked order until one is declared.", "",
+              f"real) + {report['null']['margin']}; the best few are fitted on the first {report['null']['runs']} "
+              "realisations in ranked order until one is declared.", "",
               "Time per stage (s): " + ", ".join(f"{k} {v}" for k, v in report["timing_s"].items()), ""]
     return "\n".join(lines)
 
