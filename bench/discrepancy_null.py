@@ -2,6 +2,7 @@
 against the recording, and against realisations of the base model drawn several ways.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/discrepancy_null.py REC.mcap [REC2.mcap …] [--runs 3]
+    .venv/bin/python bench/discrepancy_null.py REC.mcap … --noise-only    # the tracker noise levels
 
 The analysis's null (``analysis._null_cells``) draws the world as the fitted base model. Until
 stop 34 that was the model itself: the same smoothed poses, 1 mm/s of initial-velocity
@@ -40,6 +41,8 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--truth", action="store_true", help="add the diagnostic variants that read the truth sidecar")
     p.add_argument("--out", type=Path, help="JSON file for the results")
+    p.add_argument("--noise-only", action="store_true",
+                   help="only print the tracker noise each recording's raw poses show (no rollouts)")
     args = p.parse_args()
     import torch
     torch.set_num_threads(1)
@@ -51,6 +54,13 @@ def main() -> None:
     from liquidtwin.sensors import MaskNoise
     from liquidtwin.sensors.masks import corrupt_mask
 
+    if args.noise_only:
+        from liquidtwin.discrepancy.episode import load_episode
+        for rec in args.recordings:
+            ep = load_episode(rec)
+            print(rec.name, "  ".join(f"{n}: {pos * 1e3:.2f} mm {np.degrees(rot):.2f}°"
+                                      for n, (pos, rot) in zip(ep.object_names, ep.pose_noise)))
+        return
     results = []
     for rec in args.recordings:
         eps, sims, ev, frames, data, _, _ = prepare([rec], Options())

@@ -170,6 +170,15 @@ def test_options_are_checked():
             Options(level_runs=bad)
 
 
+def test_the_cli_refuses_bad_options_clearly(tmp_path, capsys):
+    from liquidtwin.cli import main as cli_main
+    rec = tmp_path / "rec.mcap"
+    rec.write_bytes(b"")     # never opened: the options are checked first
+    assert cli_main(["discrepancy", str(rec), "--out", str(tmp_path / "o"), "--level-runs", "65"]) == 2
+    assert "level_runs must be a whole number" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_the_analysis_model_is_converged_further_and_driven_by_smoothed_poses(tmp_path):
     """Two solver iterations above the recording's stated count, fill settled with them; the
     poses smoothed (same times, jitter gone from their differences), raw with smoothing 0."""

@@ -23,6 +23,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--null-runs", type=int, default=2, metavar="N",
                    help="realisations of the fitted base model for the false-discovery null (default 2; 0: report "
                         "gains only, declare nothing)")
+    p.add_argument("--level-runs", type=int, default=None, metavar="N",
+                   help="realisations the base model's held-out loss is compared with to call the residual real "
+                        "(default 8; the first --null-runs of them are also the candidates' null; one rollout each)")
     p.add_argument("--top", type=int, default=3, metavar="K", help="best candidates checked against the null (default 3)")
     p.add_argument("--no-calibrate", action="store_true", help="keep the base model's lambda_v, lambda_c as stated")
     p.add_argument("--seed", type=int, default=0, help="seed of the null realisations and the resampling")
@@ -44,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
         opt = Options(camera=args.camera, candidates=tuple(args.candidates), block_s=args.block,
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
-                                                            ("pose_smoothing_s", args.pose_smoothing)) if v is not None})
+                                                            ("pose_smoothing_s", args.pose_smoothing),
+                                                            ("level_runs", args.level_runs)) if v is not None})
         report = analyse(args.recordings, args.out, options=opt, progress=not args.no_progress)
     except (ValueError, OSError) as exc:
         print(f"liquidtwin discrepancy: {exc}", file=sys.stderr)
