@@ -370,3 +370,33 @@ def test_without_a_real_residual_a_negative_null_gain_sets_the_bar():
         chosen = declare(t, real, lambda c: [-0.1, -0.3])
         assert (chosen is not None) == declared
         assert t[0]["null_threshold"] == pytest.approx(NULL_MARGIN + (NULL_FACTOR * 0.3 if not real else 0.0))
+
+
+def test_values_the_loss_cannot_tell_apart_are_reported_as_a_range():
+    from liquidtwin.discrepancy.candidates import tied_range
+    # a blockage whose every fraction holds the same liquid back: one loss for all of them
+    ext, _, trace = fit_candidate("blockage", lambda e: 1.25, {}, COARSE)
+    assert tied_range("blockage", trace) == (0.4, 1.0)
+    # a loss with one minimum: no range
+    ext, _, trace = fit_candidate("blockage", lambda e: (e.params["fraction"] - 0.7) ** 2, {}, COARSE)
+    assert main_value(ext) == 0.7 and tied_range("blockage", trace) is None
+    # ties far below the tolerance are ties too; wind's range is over its magnitude
+    trace = [({"ax": 3.0, "az": 4.0}, 0.5), ({"ax": 0.0, "az": 1.0}, 0.5 * (1 + 1e-12)), ({"ax": 1.0, "az": 0.0}, 0.6)]
+    assert tied_range("wind", trace) == (1.0, 5.0)
+    assert tied_range("wind", []) is None
+
+
+def test_the_benchmark_does_not_credit_an_unidentified_fit():
+    from liquidtwin.evaluate.discrepancy import score, table
+    truth = {"effect": {"name": "blockage", "value": 0.407}}
+
+    def result(tied):
+        return {"decision": "blockage", "candidates": [{"name": "blockage", "value": 0.4, "best_tried": 0.4, "tied": tied,
+                                                        "heldout_gain": {"ci95": [1.0, 2.0]}}]}
+    flat = score(None, truth, result([0.4, 1.0]))
+    sharp = score(None, truth, result([0.4, 0.41]))
+    assert flat["correct"] and flat["rel_error"] < 0.02 and flat["identified"] is False
+    assert sharp["identified"] is True and score(None, truth, result(None))["identified"] is True
+    tab = table([flat, sharp])
+    per = tab["per_class"]["blockage"]
+    assert per["within_25pct"] == 1 and per["not_identified"] == 1 and tab["correct"] == 2

@@ -38,7 +38,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ..sensors.masks import MaskNoise, corrupt_mask
-from .candidates import COARSE, FINE, LIBRARY, fit_candidate, main_value
+from .candidates import COARSE, FINE, LIBRARY, fit_candidate, main_value, tied_range
 from .episode import POSE_SMOOTHING_S, load_episode
 from .evidence import evidence
 from .corrections import correction_evidence, fit_learned, pooled, tracker_corrections
@@ -461,6 +461,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
                                  "unit": "coarse loss"},
                 "heldout_iou_gain": float(held_iou.mean() - held_base_iou.mean()),
                 "best_tried": main_value(Extension(name, min(trace, key=lambda t: t[1])[0], base.base)),
+                "tied": tied_range(name, trace, base.base),
                 "trace": [{"params": p, "fit_loss": v} for p, v in trace],
                 "fit_loss": fit_loss, "evaluations": len(trace), "refined": rounds > COARSE,
                 "evidence": evid.get(name, {}), "_ext": ext}

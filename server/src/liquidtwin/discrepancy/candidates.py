@@ -169,6 +169,20 @@ def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict
     return _ext(name, base, **params), loss, trace
 
 
+def tied_range(name: str, trace: list, base: dict | None = None, rtol: float = 1e-9) -> tuple[float, float] | None:
+    """(lowest, highest) main value among the tried points whose fitting loss equals the best
+    one's (to ``rtol``): the values the recording cannot tell apart, because the rollouts
+    agree on every frame the loss sees. None when only one value reaches the best loss. A
+    blockage plate that already covers the pouring lip, for instance, holds the same liquid
+    back at any larger fraction."""
+    if not trace:
+        return None
+    best = min(v for _, v in trace)
+    vals = sorted({main_value(_ext(name, base or {}, **p)) for p, v in trace
+                   if abs(v - best) <= rtol * max(1.0, abs(best))})
+    return (vals[0], vals[-1]) if len(vals) > 1 else None
+
+
 def main_value(ext: Extension) -> float:
     """The one magnitude compared with a planted effect's ``value`` (its unit)."""
     p = ext.params

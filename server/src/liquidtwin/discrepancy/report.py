@@ -43,6 +43,8 @@ def markdown(report: dict) -> str:
     for i, c in enumerate(report["candidates"], 1):
         g = c["heldout_gain"]
         params = ", ".join(f"{k}={v:.4g}" for k, v in c["params"].items())
+        if c.get("tied"):
+            params += f" (same loss from {c['tied'][0]:.4g} to {c['tied'][1]:.4g})"
         lines.append(f"| {i} | {c['name']} | {params} | {g['mean']:.3f} | {_fmt(g['ci95'])} | {c['heldout_iou_gain']:+.3f} | "
                      f"{_null_cell(c)} | {_fmt(c.get('null_threshold'))} | {'yes' if c.get('declared') else ''} |")
     if report.get("learned"):

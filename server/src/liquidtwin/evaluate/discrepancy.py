@@ -85,7 +85,7 @@ def _analyse(job) -> dict:
     from ..discrepancy import Options, analyse
     rep = analyse([path], out, options=Options(**opts))
     keep = ("decision", "baseline", "extended", "timing_s", "evaluations")
-    return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "best_tried",
+    return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "best_tried", "tied",
                                                                               "heldout_gain", "null_gains", "declared",
                                                                               "trace")}
                                                          for c in rep["candidates"]]}
@@ -112,7 +112,16 @@ def score(case: DiscCase, truth: dict, result: dict) -> dict:
         if cand.get("best_tried") is not None:      # the best point tried, for comparison
             row["rel_error_best_tried"] = abs(cand["best_tried"] - eff["value"]) / abs(eff["value"])
         row["gain_ci95"] = cand["heldout_gain"]["ci95"]
+        row["identified"] = identified(cand)
     return row
+
+
+def identified(cand: dict) -> bool:
+    """Whether a fit names its value: the tried values with the same best fitting loss (``tied``)
+    span no more than ±PARAM_TOLERANCE of it. A blockage fraction that ties from 0.4 to 1.0 is
+    not identified, however close its point value (the first of the ties) happens to be."""
+    tied = cand.get("tied")
+    return not tied or tied[1] - tied[0] <= 2.0 * PARAM_TOLERANCE * abs(cand["value"])
 
 
 def table(rows: list) -> dict:
@@ -130,7 +139,9 @@ def table(rows: list) -> dict:
         tried = [r["rel_error_best_tried"] for r in rs if "rel_error_best_tried" in r]
         per[p] = {"runs": len(rs), "correct": sum(r["correct"] for r in rs),
                   "median_rel_error": float(np.median(errs)) if errs else None,
-                  "within_25pct": sum(e <= PARAM_TOLERANCE for e in errs),
+                  "within_25pct": sum(r["rel_error"] <= PARAM_TOLERANCE and r.get("identified", True)
+                                      for r in rs if "rel_error" in r),
+                  "not_identified": sum(1 for r in rs if r.get("identified") is False),
                   "median_rel_error_best_tried": float(np.median(tried)) if tried else None,
                   "gain_ci_above_0": sum(1 for r in rs if r.get("gain_ci95") and r["gain_ci95"][0] > 0)}
     total = sum(v["runs"] for v in per.values())
@@ -146,12 +157,13 @@ def format_table(tab: dict, note: str) -> str:
     for p in classes:
         lines.append(f"{p:<16}" + " ".join(f"{tab['confusion'][p][n] or '.':>6}" for n in named))
     lines += ["", f"{'class':<16}{'right':>8}{'param err (median)':>20}{'within 25 %':>13}{'gain CI > 0':>13}"
-                  f"{'best tried err':>16}"]
+                  f"{'best tried err':>16}{'not identified':>16}"]
     pct = (lambda e: "—" if e is None else f"{100 * e:.0f} %")
     for p in classes:
         v = tab["per_class"][p]
         lines.append(f"{p:<16}{v['correct']:>4}/{v['runs']:<3}{pct(v['median_rel_error']):>20}{v['within_25pct']:>13}"
-                     f"{v['gain_ci_above_0']:>13}{pct(v.get('median_rel_error_best_tried')):>16}")
+                     f"{v['gain_ci_above_0']:>13}{pct(v.get('median_rel_error_best_tried')):>16}"
+                     f"{v.get('not_identified', 0):>16}")
     lines += ["", f"named right: {tab['correct']}/{tab['runs']}", note]
     return "\n".join(lines)
 
