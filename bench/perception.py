@@ -26,12 +26,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from liquidtwin.evaluate.replay import engine_for, replay
+from liquidtwin.evaluate.replay import engine_for, model_mask, replay
 from liquidtwin.generate import generate
 from liquidtwin.perception import KINDS, build_model
-from liquidtwin.perception.stream import StreamDetector, shared_model
+from liquidtwin.perception.stream import StreamDetector, detect_recording, shared_model
 from liquidtwin.recordings import read_recording
-from liquidtwin.session import MODEL_RGB, OVERLAP_RGB
 
 MIN_PX = 50
 
@@ -64,19 +63,11 @@ def speed(frames) -> list[dict]:
     return out
 
 
-def _model_mask(overlay: np.ndarray) -> np.ndarray:
-    return np.all(overlay == MODEL_RGB, axis=2) | np.all(overlay == OVERLAP_RGB, axis=2)
-
-
 def track(path: Path) -> dict:
     rec = read_recording(path)
     cam = next(iter(rec.masks))
     t_mask, truth = rec.masks[cam]
-    det = StreamDetector(*shared_model())
-    t_img, images = rec.images[cam]
-    detected = np.stack([det(cam, im) for im in images])
-    at = {int(t): k for k, t in enumerate(t_img)}
-    det_masks = np.stack([detected[at[int(t)]] for t in t_mask])
+    det_masks = detect_recording(rec, cam, StreamDetector(*shared_model()))
     res = {}
     for source, masks in (("true", truth), ("detected", det_masks)):
         r = dataclasses.replace(rec, masks={cam: (t_mask, masks)})
@@ -87,7 +78,7 @@ def track(path: Path) -> dict:
                 return
             k = int(np.searchsorted(t_mask, rec.pose_times_ns[i]))
             if truth[k].sum() >= MIN_PX:
-                m = _model_mask(c.overlay)
+                m = model_mask(c.overlay)
                 ious.append(float((m & truth[k]).sum() / max((m | truth[k]).sum(), 1)))
         replay(r, engine_for(r, "warp_field"), camera=cam, on_frame=score)
         res[source] = float(np.mean(ious))

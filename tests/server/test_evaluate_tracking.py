@@ -156,3 +156,50 @@ def test_cases_option_picks_a_range_that_keeps_each_case_and_its_seed():
     args.cases = case_range("40:50")
     with pytest.raises(SystemExit, match="18 cases"):
         selected_cases(args)
+
+
+def test_scoring_against_reference_masks_reproduces_the_engines_iou(evaluated):
+    """``replay(reference=…)`` scores the model (read back from the correction's overlay)
+    against other masks; given the very masks the tracker corrects with, it must reproduce the
+    engine's own IOU frame by frame."""
+    from liquidtwin.evaluate.replay import engine_for, replay
+    from liquidtwin.recordings import read_recording
+    rec = read_recording(evaluated[2]["cases"][0]["recording"], images=False)
+    cam = next(iter(rec.masks))
+    own = replay(rec, engine_for(rec, "warp_field"), frames=FRAMES)
+    ref = replay(rec, engine_for(rec, "warp_field"), frames=FRAMES, reference=rec.masks[cam][1])
+    assert sum(n >= 50 for n in own.observed_px) >= 5
+    assert ref.observed_px == own.observed_px
+    assert ref.iou == pytest.approx(own.iou, abs=1e-12)
+    with pytest.raises(ValueError, match="reference masks"):
+        replay(rec, engine_for(rec, "open_loop"), frames=4, reference=rec.masks[cam][1][:3])
+
+
+def test_detected_masks_feed_the_tracker_and_are_scored_against_the_recorded_ones(tmp_path, capsys):
+    """``--masks recorded detected``: RGB benchmark recordings (other names), a ``/detected``
+    column for the closed-loop tracker only, scored on the same frames against the same
+    recorded masks as the recorded-mask column but from other corrections; the detector's own
+    agreement with the recorded masks is reported; a broken model file is refused up front."""
+    data, out = tmp_path / "data", tmp_path / "out"
+    args = ["evaluate", "tracking", "--quick", "--trials", "1", "--cases", "1", "--frames", str(FRAMES),
+            "--trackers", "open_loop", "warp_field", "--data", str(data), "--no-progress"]
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a model")
+    with pytest.raises(SystemExit, match="--detector"):
+        cli_main(args + ["--out", str(out), "--masks", "detected", "--detector", str(bad)])
+    assert not data.exists() or not list(data.glob("*.mcap"))          # refused before generating
+    assert cli_main(args + ["--out", str(out), "--masks", "recorded", "detected"]) in (0, None)
+    doc = json.loads((out / "results.json").read_text())
+    case = doc["cases"][0]
+    assert case["case"]["rgb"] and case["case"]["name"].endswith("-s0-q-rgb")
+    assert doc["columns"] == ["open_loop", "warp_field", "warp_field/detected", "ceiling"]
+    s = case["series"]
+    rec_, det = s["warp_field"], s["warp_field/detected"]
+    assert det["t_s"] == rec_["t_s"] == s["open_loop"]["t_s"]
+    assert det["observed_px"] == rec_["observed_px"]               # the same reference masks
+    assert det["iou"] != rec_["iou"]                               # but other corrections
+    agree = case["detector"]
+    assert len(agree["iou"]) == len(det["iou"]) and agree["observed_px"] == det["observed_px"]
+    assert all(0.0 <= i <= 1.0 for i in agree["iou"])
+    text = capsys.readouterr().out
+    assert "warp det" in text and "detector masks vs recorded masks: mean IOU" in text

@@ -41,11 +41,13 @@ class Case:
     quick: bool
     effect: str | None = None
     effect_value: float | None = None
+    rgb: bool = False
 
     @property
     def name(self) -> str:
         q = "q" if self.quick else "f"
-        return f"{self.kind}-{self.source}-{round(self.fraction * 100):02d}-t{self.trial}-s{self.seed}-{q}"
+        return (f"{self.kind}-{self.source}-{round(self.fraction * 100):02d}-t{self.trial}-s{self.seed}-{q}"
+                + ("-rgb" if self.rgb else ""))
 
     @property
     def scene(self) -> str:
@@ -63,8 +65,11 @@ def mild_effect(name: str, rng: np.random.Generator) -> float:
 
 
 def cases(*, quick: bool, trials: int = 2, sources=SOURCES, fills=FILLS, kinds=KINDS, base_seed: int = 0,
-          effects: bool = True) -> list[Case]:
-    """The benchmark's cases in a fixed order; seeds ``base_seed + 1000·trial + index``."""
+          effects: bool = True, rgb: bool = False) -> list[Case]:
+    """The benchmark's cases in a fixed order; seeds ``base_seed + 1000·trial + index``.
+    ``rgb``: the recordings carry synthetic RGB frames too (for a detector). Drawing the
+    frames' looks uses the seed's random stream, so these are other recordings than the
+    plain cases of the same seeds (their names end in ``-rgb``)."""
     for s in sources:
         if s not in SOURCES + ("mug",):
             raise ValueError(f"unknown source {s!r}; the benchmark uses {', '.join(SOURCES)}")
@@ -87,7 +92,7 @@ def cases(*, quick: bool, trials: int = 2, sources=SOURCES, fills=FILLS, kinds=K
                         rng = np.random.default_rng([seed, 7919])
                         eff = str(rng.choice(MILD_EFFECTS))
                         val = mild_effect(eff, rng)
-                    out.append(Case(source, float(fraction), kind, trial, seed, quick, eff, val))
+                    out.append(Case(source, float(fraction), kind, trial, seed, quick, eff, val, rgb))
     return out
 
 
@@ -103,7 +108,7 @@ def _generate_one(args) -> str:
     from ..generate import generate
     out = recording_path(Path(data), case)
     effects = [(case.effect, case.effect_value)] if case.effect else []
-    generate(case.scene, out, effects=effects, seed=case.seed, quick=case.quick,
+    generate(case.scene, out, effects=effects, seed=case.seed, quick=case.quick, rgb=case.rgb,
              choices={"source": case.source, "fraction": case.fraction})
     meta = out.with_suffix(".case.json")
     meta.write_text(json.dumps(case.as_dict(), indent=2) + "\n")

@@ -46,16 +46,30 @@ def engine_for(rec, tracking: str = "open_loop", *, spec: pb.SessionSpec | None 
     return eng
 
 
+def model_mask(overlay: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels a correction's overlay shows as the model's liquid (model only
+    or overlap, :mod:`liquidtwin.session.overlay`'s colours)."""
+    from ..session import MODEL_RGB, OVERLAP_RGB
+    return np.all(overlay == MODEL_RGB, axis=2) | np.all(overlay == OVERLAP_RGB, axis=2)
+
+
 def replay(rec, engine, *, camera: str | None = None, frames: int | None = None,
-           on_frame: Callable | None = None) -> Replay:
+           on_frame: Callable | None = None, reference: np.ndarray | None = None) -> Replay:
     """Run ``engine`` over ``rec``. ``on_frame(i, engine, correction_or_None)`` is called after
-    each pose sample (``correction`` is the CorrectionResult when a mask came with it)."""
+    each pose sample (``correction`` is the CorrectionResult when a mask came with it).
+    ``reference``: (M, H, W) bool masks, one per mask of ``camera`` in ``rec``, to score the
+    model against instead of the masks it is corrected with (e.g. the recorded masks when the
+    tracker is fed detected ones)."""
     if rec.spec is None:
         raise ValueError(f"{rec.path}: no /scene in the recording; cannot build the model")
     if not rec.masks:
         raise ValueError(f"{rec.path}: no liquid masks in the recording")
+    import torch
+    from ..camera import iou as mask_iou
     camera = camera or next(iter(rec.masks))
     stamps, masks = rec.masks[camera]
+    if reference is not None and np.shape(reference) != np.shape(masks):
+        raise ValueError(f"reference masks {np.shape(reference)} do not match the recording's {np.shape(masks)}")
     out = Replay(engine, camera)
     n = len(rec.pose_times_ns) if frames is None else min(frames, len(rec.pose_times_ns))
     t0 = int(rec.pose_times_ns[0])
@@ -67,8 +81,13 @@ def replay(rec, engine, *, camera: str | None = None, frames: int | None = None,
         if j < len(stamps) and stamps[j] == t:
             c = engine.correct(camera, masks[j])
             out.t_s.append((t - t0) * 1e-9)
-            out.iou.append(float(c.iou))
-            out.observed_px.append(int(c.observed_px))
+            if reference is None:
+                out.iou.append(float(c.iou))
+                out.observed_px.append(int(c.observed_px))
+            else:
+                ref = np.asarray(reference[j], bool)
+                out.iou.append(float(mask_iou(torch.from_numpy(model_mask(c.overlay)), torch.from_numpy(ref))))
+                out.observed_px.append(int(ref.sum()))
         if on_frame is not None:
             on_frame(i, engine, c)
     return out

@@ -11,6 +11,13 @@ which no tracker ever sees) drawn with the engine's model mask (projected sphere
 model's particle radius, occluded by the objects at their true poses) against the same
 observed masks — what mask noise and drawing alone cost, the best any tracker could score.
 
+``--masks detected`` feeds the closed-loop trackers the masks the server's RGB detector
+(:mod:`liquidtwin.perception.stream`) finds in the recordings' synthetic RGB frames, as a
+session with ``mask_source = "rgb"`` would, and scores them against the *recorded* masks like
+every other column (column ``TRACKER/detected``). The benchmark is then generated with RGB
+frames (cases named ``…-rgb``: other recordings than the plain ones of the same seeds). Open
+loop never reads a mask, so it has no detected column.
+
 A tracker whose session cannot be created (EngineError INFEASIBLE, e.g. a mode not built
 yet) gets "n/a" in its column. Results: ``results.json`` (every case with its seed and
 parameters, every IOU series), ``table.png`` (bars of the table) and ``iou_time.png``. ``--jobs``
@@ -31,7 +38,9 @@ from .replay import MODES, engine_for, replay
 HELP = "closed-loop tracking IOU per tracker on the pouring benchmark (thesis Fig. 7.5)"
 TRACKERS = ("open_loop", "map_filter", "warp_field", "spnets_perception")
 LABELS = {"open_loop": "open loop", "map_filter": "MAP", "warp_field": "warp", "spnets_perception": "SPNets+perc",
-          "ceiling": "ceiling"}
+          "ceiling": "ceiling", "map_filter/detected": "MAP det", "warp_field/detected": "warp det",
+          "spnets_perception/detected": "SPNets det"}
+MASK_SOURCES = ("recorded", "detected")
 ROWS = ("cup", "bottle", "30 %", "60 %", "90 %", "overall")
 
 
@@ -45,6 +54,25 @@ def configure(p) -> None:
                    help="only the first N pose samples of each recording (default: all)")
     p.add_argument("--min-px", type=int, default=50, metavar="PX",
                    help="frames count only when the observed mask has at least this many liquid px (default: 50)")
+    p.add_argument("--masks", nargs="+", default=["recorded"], choices=MASK_SOURCES, metavar="SRC",
+                   help="what the closed-loop trackers correct with: 'recorded' (the recordings' masks) and/or "
+                        "'detected' (the RGB detector's masks; generates the benchmark with RGB frames). Every "
+                        "column is scored against the recorded masks (default: recorded)")
+    p.add_argument("--detector", type=Path, default=None, metavar="MODEL.pt",
+                   help="liquid detector for --masks detected (default: the shipped model)")
+
+
+def columns_for(trackers, masks) -> list[str]:
+    """Table columns: each tracker per mask source (``TRACKER/detected`` for detected masks;
+    open loop only once, it reads no mask), then the ceiling."""
+    cols = []
+    for src in masks:
+        for t in trackers:
+            if src == "recorded":
+                cols.append(t)
+            elif t != "open_loop":
+                cols.append(f"{t}/{src}")
+    return list(dict.fromkeys(cols)) + ["ceiling"]
 
 
 def table(results: list[dict], columns: list[str], min_px: int) -> dict:
@@ -129,58 +157,105 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
 
 
 def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: bool = True,
-                  iterations: int | None = None) -> dict:
-    """{tracker or "ceiling": {"t_s", "iou", "observed_px"} or None (tracker not available)};
-    ``iterations``: the model's solver iterations (None: the recording's)."""
+                  iterations: int | None = None, masks=("recorded",), detector: Path | None = None) -> dict:
+    """{column (:func:`columns_for`): {"t_s", "iou", "observed_px"} or None (tracker not
+    available)}; ``iterations``: the model's solver iterations (None: the recording's);
+    ``masks``: mask sources; ``detector``: model file for detected masks (None: shipped).
+    With detected masks, also "detector": the detector's masks against the recorded ones."""
+    import dataclasses
+
     from ..recordings import read_recording
     from ..session.errors import INFEASIBLE, EngineError
-    rec = with_model_options(read_recording(path, images=False), iterations)
-    series, notes = {}, {}
+    rec = with_model_options(read_recording(path, images="detected" in masks), iterations)
+    camera = next(iter(rec.masks))
+    stamps, recorded = rec.masks[camera]
+    series, notes, extra = {}, {}, {}
     engine = None
-    for t in trackers:
-        try:
-            engine = engine_for(rec, t)
-        except EngineError as e:
-            if e.code != INFEASIBLE:
-                raise
-            series[t], notes[t] = None, str(e)
-            continue
-        r = replay(rec, engine, frames=frames)
-        series[t] = {"t_s": r.t_s, "iou": r.iou, "observed_px": r.observed_px}
+    for src in masks:
+        fed, reference = rec, None
+        if src == "detected":
+            from ..perception.stream import StreamDetector, detect_recording
+            found = detect_recording(rec, camera, StreamDetector.from_file(detector))
+            fed, reference = dataclasses.replace(rec, masks={camera: (stamps, found)}), recorded
+            extra["detector"] = _mask_agreement(found, recorded, frames, rec, stamps)
+        for t in trackers:
+            col = t if src == "recorded" else f"{t}/{src}"
+            if (src != "recorded" and t == "open_loop") or col in series:
+                continue
+            try:
+                engine = engine_for(rec, t)
+            except EngineError as e:
+                if e.code != INFEASIBLE:
+                    raise
+                series[col], notes[col] = None, str(e)
+                continue
+            r = replay(fed, engine, camera=camera, frames=frames, reference=reference)
+            series[col] = {"t_s": r.t_s, "iou": r.iou, "observed_px": r.observed_px}
     if ceiling:
         engine = engine if engine is not None else engine_for(rec, "open_loop")
-        series["ceiling"] = ceiling_series(rec, path, engine, next(iter(rec.masks)), frames)
-    return {"series": series, "unavailable": notes}
+        series["ceiling"] = ceiling_series(rec, path, engine, camera, frames)
+    return {"series": series, "unavailable": notes, **extra}
+
+
+def _mask_agreement(found, recorded, frames, rec, stamps) -> dict:
+    """Per mask frame (up to ``frames`` pose samples): IOU of the detected mask against the
+    recorded one, and the recorded mask's pixel count."""
+    from ..camera import iou as mask_iou
+    import torch
+    limit = None if frames is None else int(rec.pose_times_ns[min(frames, len(rec.pose_times_ns)) - 1])
+    keep = [k for k, s in enumerate(stamps) if limit is None or s <= limit]
+    return {"iou": [float(mask_iou(torch.from_numpy(found[k]), torch.from_numpy(np.asarray(recorded[k], bool))))
+                    for k in keep],
+            "observed_px": [int(np.asarray(recorded[k]).sum()) for k in keep]}
 
 
 def run(args) -> int:
     from tqdm import tqdm
     trackers = list(dict.fromkeys(args.trackers))
-    case_list = selected_cases(args)
+    masks = list(dict.fromkeys(args.masks))
+    detector = None
+    if "detected" in masks:
+        from ..perception.stream import shared_model
+        from ..perception.weights import PerceptionModelError
+        try:
+            _, meta = shared_model(args.detector)          # a bad model file fails here, before any work
+        except (PerceptionModelError, OSError) as e:
+            raise SystemExit(f"--detector: {e}") from None
+        detector = None if args.detector is None else str(args.detector)
+        print(f"detector: {args.detector or 'shipped model'} ({meta.get('kind')}, {meta.get('input_type')}, "
+              f"{meta.get('fusion')} fusion, threshold {float(meta.get('threshold', 0.5)):.2f})")
+    case_list = selected_cases(args, rgb="detected" in masks)
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
-    work = [(str(p), tuple(trackers), args.frames, args.iterations) for p in paths]
+    work = [(str(p), tuple(trackers), args.frames, args.iterations, tuple(masks), detector) for p in paths]
     bar = tqdm(total=len(work), desc="replay", unit="case", disable=args.no_progress)
     for case, path, r in zip(case_list, paths, map_jobs(_evaluate_one, work, args.jobs)):
         bar.update()
         means = {k: _mean(v, args.min_px) for k, v in r["series"].items()}
         results.append({"case": case.as_dict(), "recording": str(path), "mean_iou": means, **r})
     bar.close()
-    columns = trackers + ["ceiling"]
+    columns = columns_for(trackers, masks)
     tab = table(results, columns, args.min_px)
     note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
             f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else "")
             + (f", model solver iterations {args.iterations}" if args.iterations else "")
-            + "; ceiling = the true particles drawn as the model (scoring only)")
+            + "; ceiling = the true particles drawn as the model (scoring only)"
+            + ("; TRACKER det = corrected with the RGB detector's masks, scored against the recorded masks"
+               if "detected" in masks else ""))
     text = format_table(tab, columns, args.min_px, note)
+    if "detected" in masks:
+        agree = [i for r in results for i, n in zip(r["detector"]["iou"], r["detector"]["observed_px"])
+                 if n >= args.min_px]
+        text += (f"\ndetector masks vs recorded masks: mean IOU {np.mean(agree):.3f} over {len(agree)} frames "
+                 f"with >= {args.min_px} recorded px" if agree else "\ndetector masks: no frame with liquid")
     print(text)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = {"kind": "tracking", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
            "frames": args.frames, "iterations": args.iterations, "min_px": args.min_px, "trackers": trackers,
-           "columns": columns,
+           "masks": masks, "detector": detector, "columns": columns,
            "table": tab, "table_text": text, "cases": results}
-    closed = [c for c in trackers if c != "open_loop" and tab["overall"].get(c) is not None]
+    closed = [c for c in columns if c not in ("open_loop", "ceiling") and tab["overall"].get(c) is not None]
     best = max(closed, key=lambda c: tab["overall"][c]) if closed else None
     doc["headline"] = {"name": f"best closed-loop overall IOU ({best or 'no closed-loop tracker run'})",
                        "value": tab["overall"][best] if best else None, "unit": "IOU"}
@@ -192,8 +267,9 @@ def run(args) -> int:
 def _evaluate_one(job) -> dict:
     import torch
     torch.set_num_threads(1)
-    path, trackers, frames, iterations = job
-    return evaluate_case(Path(path), trackers, frames=frames, iterations=iterations)
+    path, trackers, frames, iterations, masks, detector = job
+    return evaluate_case(Path(path), trackers, frames=frames, iterations=iterations, masks=masks,
+                         detector=None if detector is None else Path(detector))
 
 
 def map_jobs(fn, work: list, jobs: int):

@@ -73,3 +73,21 @@ class StreamDetector:
     def __call__(self, camera: str, rgb: np.ndarray) -> np.ndarray:
         """(H, W) bool liquid mask of one frame of ``camera``."""
         return self.probability(camera, rgb) >= self.threshold
+
+
+def detect_recording(rec, camera: str, detector: "StreamDetector") -> np.ndarray:
+    """(M, H, W) bool: ``detector``'s mask for each of ``rec``'s M recorded masks of
+    ``camera``, from the newest RGB frame at or before the mask's stamp (as a session does),
+    all-False where no frame came yet. Every frame is fed in stamp order from a fresh stream."""
+    if camera not in rec.images:
+        raise ValueError(f"{rec.path}: no RGB images of camera {camera!r} (generate with --rgb)")
+    t_img, images = rec.images[camera]
+    t_mask, masks = rec.masks[camera]
+    detector.reset()
+    detected = [detector(camera, im) for im in images]
+    out = np.zeros(np.shape(masks), bool)
+    for k, t in enumerate(t_mask):
+        i = int(np.searchsorted(t_img, t, side="right")) - 1
+        if i >= 0:
+            out[k] = detected[i]
+    return out
