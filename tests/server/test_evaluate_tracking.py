@@ -193,6 +193,8 @@ def test_detected_masks_feed_the_tracker_and_are_scored_against_the_recorded_one
     case = doc["cases"][0]
     assert case["case"]["rgb"] and case["case"]["name"].endswith("-s0-q-rgb")
     assert doc["columns"] == ["open_loop", "warp_field", "warp_field/detected", "ceiling"]
+    from liquidtwin.evaluate.tracking import columns_for     # open loop reads no mask: one column, always
+    assert columns_for(["open_loop", "warp_field"], ["detected"]) == ["open_loop", "warp_field/detected", "ceiling"]
     s = case["series"]
     rec_, det = s["warp_field"], s["warp_field/detected"]
     assert det["t_s"] == rec_["t_s"] == s["open_loop"]["t_s"]

@@ -16,7 +16,7 @@ observed masks — what mask noise and drawing alone cost, the best any tracker 
 session with ``mask_source = "rgb"`` would, and scores them against the *recorded* masks like
 every other column (column ``TRACKER/detected``). The benchmark is then generated with RGB
 frames (cases named ``…-rgb``: other recordings than the plain ones of the same seeds). Open
-loop never reads a mask, so it has no detected column.
+loop never reads a mask: it keeps its one column, scored against the recorded masks.
 
 A tracker whose session cannot be created (EngineError INFEASIBLE, e.g. a mode not built
 yet) gets "n/a" in its column. Results: ``results.json`` (every case with its seed and
@@ -67,11 +67,7 @@ def columns_for(trackers, masks) -> list[str]:
     open loop only once, it reads no mask), then the ceiling."""
     cols = []
     for src in masks:
-        for t in trackers:
-            if src == "recorded":
-                cols.append(t)
-            elif t != "open_loop":
-                cols.append(f"{t}/{src}")
+        cols += [t if src == "recorded" or t == "open_loop" else f"{t}/{src}" for t in trackers]
     return list(dict.fromkeys(cols)) + ["ceiling"]
 
 
@@ -179,8 +175,8 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: b
             fed, reference = dataclasses.replace(rec, masks={camera: (stamps, found)}), recorded
             extra["detector"] = _mask_agreement(found, recorded, frames, rec, stamps)
         for t in trackers:
-            col = t if src == "recorded" else f"{t}/{src}"
-            if (src != "recorded" and t == "open_loop") or col in series:
+            col = t if src == "recorded" or t == "open_loop" else f"{t}/{src}"
+            if col in series:
                 continue
             try:
                 engine = engine_for(rec, t)
@@ -189,7 +185,8 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: b
                     raise
                 series[col], notes[col] = None, str(e)
                 continue
-            r = replay(fed, engine, camera=camera, frames=frames, reference=reference)
+            r = (replay(rec, engine, camera=camera, frames=frames) if t == "open_loop" else   # reads no mask
+                 replay(fed, engine, camera=camera, frames=frames, reference=reference))
             series[col] = {"t_s": r.t_s, "iou": r.iou, "observed_px": r.observed_px}
     if ceiling:
         engine = engine if engine is not None else engine_for(rec, "open_loop")
