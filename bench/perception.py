@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from liquidtwin.evaluate.replay import engine_for, model_mask, replay
+from liquidtwin.evaluate.replay import engine_for, replay
 from liquidtwin.generate import generate
 from liquidtwin.perception import KINDS, build_model
 from liquidtwin.perception.stream import StreamDetector, detect_recording, shared_model
@@ -71,17 +71,7 @@ def track(path: Path) -> dict:
     res = {}
     for source, masks in (("true", truth), ("detected", det_masks)):
         r = dataclasses.replace(rec, masks={cam: (t_mask, masks)})
-        ious = []
-
-        def score(i, engine, c, masks=masks):
-            if c is None:
-                return
-            k = int(np.searchsorted(t_mask, rec.pose_times_ns[i]))
-            if truth[k].sum() >= MIN_PX:
-                m = model_mask(c.overlay)
-                ious.append(float((m & truth[k]).sum() / max((m | truth[k]).sum(), 1)))
-        replay(r, engine_for(r, "warp_field"), camera=cam, on_frame=score)
-        res[source] = float(np.mean(ious))
+        res[source] = replay(r, engine_for(r, "warp_field"), camera=cam, reference=truth).mean_iou(MIN_PX)
     wet = truth.sum(axis=(1, 2)) >= MIN_PX
     inter = (det_masks & truth).sum(axis=(1, 2))
     union = (det_masks | truth).sum(axis=(1, 2))

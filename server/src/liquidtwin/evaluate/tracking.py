@@ -126,7 +126,7 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
     radius = particle_radius(float(scene.model.spacing))
     cam = engine._cameras.camera(camera)
     stamps, masks = rec.masks[camera]
-    limit = None if frames is None else int(rec.pose_times_ns[min(frames, len(rec.pose_times_ns)) - 1])
+    limit = _last_stamp(rec, frames)
     t0 = int(rec.pose_times_ns[0])
     out = {"t_s": [], "iou": [], "observed_px": [], "model_px": []}
     pose_stamps = truth["pose_stamps_ns"]
@@ -194,12 +194,17 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: b
     return {"series": series, "unavailable": notes, **extra}
 
 
+def _last_stamp(rec, frames: int | None) -> int | None:
+    """Stamp of the ``frames``-th pose sample (None: no limit), the last mask frame scored."""
+    return None if frames is None else int(rec.pose_times_ns[min(frames, len(rec.pose_times_ns)) - 1])
+
+
 def _mask_agreement(found, recorded, frames, rec, stamps) -> dict:
     """Per mask frame (up to ``frames`` pose samples): IOU of the detected mask against the
     recorded one, and the recorded mask's pixel count."""
     from ..camera import iou as mask_iou
     import torch
-    limit = None if frames is None else int(rec.pose_times_ns[min(frames, len(rec.pose_times_ns)) - 1])
+    limit = _last_stamp(rec, frames)
     keep = [k for k, s in enumerate(stamps) if limit is None or s <= limit]
     return {"iou": [float(mask_iou(torch.from_numpy(found[k]), torch.from_numpy(np.asarray(recorded[k], bool))))
                     for k in keep],
