@@ -62,6 +62,9 @@ def test_evaluate_perception_end_to_end_on_a_tiny_dataset(tmp_path, capsys):
             aucs = [r[split][str(s)] for s in (0, 1, 2, 4)]
             assert all(0 <= a <= 1 for a in aucs) and aucs == sorted(aucs)     # slack only helps
     assert (out / "pr_curves.png").stat().st_size > 0 and (out / "detections.png").stat().st_size > 0
+    assert "selected_step" not in by["fcn"] and not (out / "selection.png").exists()
+    with pytest.raises(SystemExit, match="calibration pours"):      # nothing held out to choose on
+        main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--out", str(out), "--select-every", "2"])
     with pytest.raises(SystemExit, match="KIND/INPUT/FUSION"):
         main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--models", "unet/rgb/early"])
 
@@ -100,6 +103,12 @@ def test_calibration_split_resumes_the_dataset_and_sets_the_threshold(tmp_path, 
     brute = max(f1(t) for t in np.linspace(0, 1, 201))
     assert f1(meta["threshold"]) >= brute - 0.01
 
+    chosen = tmp_path / "chosen.pt"                   # training length chosen on the same pours
+    assert main(["perception", "train", "--data", str(data), "--kind", "fcn", "--crop-iterations", "3",
+                 "--full-iterations", "2", "--select-every", "2", "--out", str(chosen), "--no-progress"]) == 0
+    assert "best 0 px AUC on the 1 calibration pours" in capsys.readouterr().out
+    assert load_model(chosen)[1]["selected_step"] in (2, 4, 5)
+
     capsys.readouterr()
     assert main(["perception", "calibrate", str(model), "--data", str(data), "--out", str(tmp_path / "c.pt")]) == 0
     assert "F1-best on 1 calibration pours" in capsys.readouterr().out
@@ -111,3 +120,5 @@ def test_calibration_split_resumes_the_dataset_and_sets_the_threshold(tmp_path, 
     (bare / "dataset.json").write_text(json.dumps({**first, "calib": []}))
     with pytest.raises(SystemExit, match="no calibration pours"):
         main(["perception", "calibrate", str(model), "--data", str(bare)])
+    with pytest.raises(SystemExit, match="chooses on the calibration pours"):
+        main(["perception", "train", "--data", str(bare), "--select-every", "2", "--out", str(tmp_path / "x.pt")])

@@ -6,6 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+import torch
 
 from liquidtwin.perception import auc, baseline_scores, pr_auc, pr_curve
 from liquidtwin.perception.data import Clip
@@ -101,3 +102,33 @@ def test_training_learns_to_detect_moving_liquid_on_unseen_sequences():
     assert np.mean(h[-10:]) < 0.7 * np.mean(h[:10])
     probs = detect(net, encode_clips([test_clip], "grey_flow")[0])
     assert auc(probs, test_clip.masks) > 5 * test_clip.masks.mean()
+
+
+def test_training_length_is_chosen_on_held_out_clips_and_the_watched_ones_never_choose():
+    """``select_every``: checkpoints every N steps and at the last; the weights returned are
+    the checkpoint with the best held-out AUC — re-scored independently here, they give
+    exactly that AUC — and scoring extra clips for the record changes nothing."""
+    train_clips = [_moving_liquid(s) for s in range(2)]
+    held_out, watched = [_moving_liquid(20)], [_moving_liquid(30)]
+    cfg = TrainConfig(kind="fcn", input_type="grey_flow", crop_iterations=30, full_iterations=15, crop_px=32,
+                      window=2, batch=2, lr=5e-3, select_every=10)
+    net, info = train(train_clips, cfg, progress=False, select_on=held_out, watch=watched)
+    points = info["checkpoints"]
+    assert [p["step"] for p in points] == [10, 20, 30, 40, 45]
+    assert all(0 <= p["select_auc"] <= 1 and 0 <= p["watch_auc"] <= 1 for p in points)
+    best = max(points, key=lambda p: p["select_auc"])
+    assert info["selected_step"] == best["step"] and info["selected_on"] == ["synthetic20"]
+    rescored = auc(detect(net, encode_clips(held_out, "grey_flow")[0]), held_out[0].masks, 0)
+    assert rescored == pytest.approx(best["select_auc"], abs=1e-6)
+    # the held-out AUCs differ along the way, so the choice is not trivially the last step
+    assert len({round(p["select_auc"], 6) for p in points}) > 1
+
+    unwatched, info2 = train(train_clips, cfg, progress=False, select_on=held_out)
+    assert info2["selected_step"] == info["selected_step"] and "watch_auc" not in info2["checkpoints"][0]
+    for (k, a), b in zip(net.state_dict().items(), unwatched.state_dict().values()):
+        assert torch.equal(a, b), k
+
+    _, info3 = train(train_clips, TrainConfig(**{**cfg.__dict__, "select_every": 0}), progress=False)
+    assert "checkpoints" not in info3
+    with pytest.raises(ValueError, match="held-out"):
+        train(train_clips, cfg, progress=False)

@@ -14,6 +14,7 @@ kind and the baseline; example detections on a test frame.
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -41,6 +42,11 @@ def configure(p) -> None:
     p.add_argument("--test-seqs", type=int, default=None, help="test pours when generating (default 4, quick 3)")
     p.add_argument("--crop-iterations", type=int, default=300, help="pre-training steps on crops (default: %(default)s)")
     p.add_argument("--full-iterations", type=int, default=150, help="steps on full frames (default: %(default)s)")
+    p.add_argument("--select-every", type=int, default=0, metavar="N",
+                   help="choose each network's training length on held-out pours: score it on the dataset's "
+                        "calibration split every N steps and keep the best weights (0: keep the last; "
+                        "default: %(default)s). The test pours are scored at the same steps for the record "
+                        "(selection.png) but never choose")
     p.add_argument("--seed", type=int, default=0, help="dataset and training seed (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=2, help="networks trained in parallel (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
@@ -75,16 +81,19 @@ def _train_one(work) -> dict:
     from ..perception.data import load_split
     from ..perception.train import TrainConfig, detect, encode_clips, train
     from ..perception import load_model
-    (kind, input_type, fusion), data, out, crop_it, full_it, seed = work
+    (kind, input_type, fusion), data, out, crop_it, full_it, seed, select_every = work
     train_clips, test_clips = load_split(data, "train"), load_split(data, "test")
     cfg = TrainConfig(kind=kind, input_type=input_type, fusion=fusion, crop_iterations=crop_it,
-                      full_iterations=full_it, seed=seed)
+                      full_iterations=full_it, seed=seed, select_every=select_every)
     init = Path(out) / "models" / f"fcn-{input_type}-{fusion}.pt"
     init = init if kind != "fcn" and init.is_file() else None
-    net, info = train(train_clips, cfg, progress=False, init=None if init is None else load_model(init)[0])
+    net, info = train(train_clips, cfg, progress=False, init=None if init is None else load_model(init)[0],
+                      select_on=load_split(data, "calib") if select_every else None, watch=test_clips)
     res = {"kind": kind, "input_type": input_type, "fusion": fusion, "parameters": parameter_count(net),
            "init": None if init is None else init.name,
            "train_wall_s": info["wall_s"], "final_loss": float(np.mean(info["loss_history"][-20:]))}
+    if "selected_step" in info:
+        res.update(selected_step=info["selected_step"], checkpoints=info["checkpoints"])
     for split, clips in (("train", train_clips), ("test", test_clips)):
         probs = [detect(net, x) for x in encode_clips(clips, input_type)]
         res[split] = scores_auc(probs, clips)
@@ -108,15 +117,22 @@ def _baseline(data) -> dict:
 def run(args) -> int:
     from tqdm.auto import tqdm
 
-    from ..perception.data import make_dataset
+    from ..perception.data import load_split, make_dataset
     from .cli import save_results
     from .tracking import map_jobs
     grid = _grid(args)
+    if args.select_every < 0:
+        raise SystemExit(f"--select-every takes N >= 0 steps, got {args.select_every}")
     if not (args.data / "dataset.json").is_file():
         n_train = args.train_seqs or (8 if args.quick else 12)
         n_test = args.test_seqs or (3 if args.quick else 4)
         print(f"generating the perception dataset in {args.data} ({n_train} train + {n_test} test pours)")
-        make_dataset(args.data, train=n_train, test=n_test, seed=args.seed, progress=not args.no_progress)
+        make_dataset(args.data, train=n_train, test=n_test, calib=3 if args.select_every else 0, seed=args.seed,
+                     progress=not args.no_progress)
+    if args.select_every and not load_split(args.data, "calib"):
+        raise SystemExit(f"--select-every chooses on the dataset's calibration pours and {args.data} has none; "
+                         f"add them with `liquidtwin perception data --out {args.data} --calib 3 --seed "
+                         f"{json.loads((args.data / 'dataset.json').read_text())['seed']}`")
     (args.out / "models").mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     base = _baseline(args.data)
@@ -124,14 +140,16 @@ def run(args) -> int:
     results = []
     bar = tqdm(total=len(grid), desc="networks", unit="net", disable=args.no_progress)
     for phase in ([g for g in grid if g[0] == "fcn"], [g for g in grid if g[0] != "fcn"]):
-        work = [(g, args.data, args.out, args.crop_iterations, args.full_iterations, args.seed) for g in phase]
+        work = [(g, args.data, args.out, args.crop_iterations, args.full_iterations, args.seed, args.select_every)
+                for g in phase]
         for r in map_jobs(_train_one, work, args.jobs):
             results.append(r)
             bar.update()
     bar.close()
     best = max(results, key=lambda r: r["test"]["0"])
     doc = {"kind": "perception", "quick": args.quick, "seed": args.seed, "data": str(args.data),
-           "slacks": list(SLACKS), "wall_s": time.perf_counter() - t0, "baseline": base, "results": results,
+           "slacks": list(SLACKS), "iterations": {"crop": args.crop_iterations, "full": args.full_iterations},
+           "select_every": args.select_every, "wall_s": time.perf_counter() - t0, "baseline": base, "results": results,
            "headline": {"name": f"best test AUC (0 px slack): {best['kind']}/{best['input_type']}/{best['fusion']}",
                         "value": best["test"]["0"], "unit": "AUC"}}
     out = save_results(args.out, doc)
@@ -155,12 +173,18 @@ def _print(results: list[dict], base: dict) -> None:
                    cell.get((kind, img + "_flow", "late"))]
             print(f"{img:>8}" + "".join(f"{fmt(r):>15}" for r in row))
         print(f"{'flow':>8}{fmt(cell.get((kind, 'flow', 'early'))):>15}")
-    print(f"\n{'network':<28}" + "".join(f"{'test ' + str(s) + 'px':>10}" for s in SLACKS) + f"{'train 0px':>11}")
+    chosen = any("selected_step" in r for r in results)
+    print(f"\n{'network':<28}" + "".join(f"{'test ' + str(s) + 'px':>10}" for s in SLACKS) + f"{'train 0px':>11}"
+          + (f"{'held-out 0px':>14}{'chosen step':>13}" if chosen else ""))
     rows = sorted(results, key=lambda r: -r["test"]["0"])
     for r in rows:
         name = f"{r['kind']}/{r['input_type']}/{r['fusion']}"
+        sel = ""
+        if "selected_step" in r:
+            at = next(c for c in r["checkpoints"] if c["step"] == r["selected_step"])
+            sel = f"{100 * at['select_auc']:>13.1f}%{r['selected_step']:>13}"
         print(f"{name:<28}" + "".join(f"{100 * r['test'][str(s)]:>9.1f}%" for s in SLACKS)
-              + f"{100 * r['train']['0']:>10.1f}%")
+              + f"{100 * r['train']['0']:>10.1f}%" + sel)
     print(f"{'baseline (flow, §4.5.3)':<28}" + "".join(f"{100 * base['test'][str(s)]:>9.1f}%" for s in SLACKS)
           + f"{100 * base['train']['0']:>10.1f}%")
 
@@ -202,6 +226,34 @@ def _plot(out: Path, results: list[dict], base: dict, data: Path) -> None:
         ax.axis("off")
     fig.tight_layout()
     fig.savefig(out / "detections.png", dpi=100)
+    plt.close(fig)
+    _plot_selection(out, results)
+
+
+def _plot_selection(out: Path, results: list[dict]) -> None:
+    """Held-out (calibration) and test AUC over training steps per network, chosen step marked."""
+    import matplotlib.pyplot as plt
+    runs = [r for r in results if r.get("checkpoints")]
+    if not runs:
+        return
+    cols = min(4, len(runs))
+    rows = -(-len(runs) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.8 * rows), squeeze=False, sharey=True)
+    for ax, r in zip(axes.flat, runs):
+        steps = [c["step"] for c in r["checkpoints"]]
+        ax.plot(steps, [100 * c["select_auc"] for c in r["checkpoints"]], label="held-out (chooses)")
+        if "watch_auc" in r["checkpoints"][0]:
+            ax.plot(steps, [100 * c["watch_auc"] for c in r["checkpoints"]], "--", label="test (record only)")
+        ax.axvline(r["selected_step"], color="k", lw=0.8)
+        ax.set_title(f"{r['kind']} {r['input_type']} {r['fusion']}", fontsize=8)
+        ax.set_xlabel("step", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes.flat[0].set_ylabel("AUC % (0 px)")
+    axes.flat[0].legend(fontsize=7)
+    for ax in list(axes.flat)[len(runs):]:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(out / "selection.png", dpi=100)
     plt.close(fig)
 
 

@@ -43,6 +43,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     t.add_argument("--fusion", choices=FUSIONS, default="early", help="(default: %(default)s)")
     t.add_argument("--crop-iterations", type=int, default=600, help="pre-training steps on crops (default: %(default)s)")
     t.add_argument("--full-iterations", type=int, default=300, help="steps on full frames (default: %(default)s)")
+    t.add_argument("--select-every", type=int, default=0, metavar="N",
+                   help="score on the calibration pours every N steps and keep the best weights "
+                        "(0: keep the last; default: %(default)s)")
     t.add_argument("--init", type=Path, default=None, metavar="FCN.pt",
                    help="start the input block from this trained detector (same input and fusion)")
     t.add_argument("--seed", type=int, default=0, help="(default: %(default)s)")
@@ -141,14 +144,17 @@ def _train(args) -> int:
     from .weights import save_model
     if args.threads > 0:
         torch.set_num_threads(args.threads)
+    calib = load_split(args.data, "calib")
+    if args.select_every < 0 or (args.select_every and not calib):
+        raise SystemExit(f"--select-every takes N >= 0 and chooses on the calibration pours; {args.data} has "
+                         f"{len(calib)} (add them with `liquidtwin perception data --out {args.data} --calib 3`)")
     train_clips, test_clips = load_split(args.data, "train"), load_split(args.data, "test")
     cfg = TrainConfig(kind=args.kind, input_type=args.input, fusion=args.fusion, crop_iterations=args.crop_iterations,
-                      full_iterations=args.full_iterations, seed=args.seed)
+                      full_iterations=args.full_iterations, seed=args.seed, select_every=args.select_every)
     from .weights import load_model
     init = load_model(args.init)[0] if args.init else None
-    net, info = train(train_clips, cfg, progress=not args.no_progress, init=init)
+    net, info = train(train_clips, cfg, progress=not args.no_progress, init=init, select_on=calib or None)
     probs = [detect(net, x) for x in encode_clips(train_clips, cfg.input_type)]
-    calib = load_split(args.data, "calib")
     thr_from = {"split": "calib" if calib else "train", "pours": len(calib or train_clips)}
     thr = (best_threshold([detect(net, x) for x in encode_clips(calib, cfg.input_type)], [c.masks for c in calib])
            if calib else best_threshold(probs, [c.masks for c in train_clips]))
@@ -157,13 +163,16 @@ def _train(args) -> int:
     manifest = json.loads((args.data / "dataset.json").read_text())
     meta = {"size": list(SIZE), "threshold": thr, "threshold_from": thr_from, "trained": info["config"], "train_wall_s": info["wall_s"],
             "dataset": {"seed": manifest["seed"], "train": len(manifest["train"]), "test": len(manifest["test"])},
-            "auc": auc, "parameters": parameter_count(net),
+            "auc": auc, "parameters": parameter_count(net), "selected_step": info.get("selected_step"),
             "init": None if args.init is None else args.init.name, "made": time.strftime("%Y-%m-%d")}
     save_model(args.out, net, meta)
     size_kb = args.out.stat().st_size / 1024
     print(f"{cfg.kind}/{cfg.input_type}/{cfg.fusion}: {parameter_count(net)} parameters, {size_kb:.0f} KB, "
           f"trained {info['wall_s']:.0f} s; threshold {thr:.2f} (F1-best on {thr_from['pours']} "
           f"{thr_from['split']} pours)")
+    if "selected_step" in info:
+        print(f"  weights of step {info['selected_step']} of {cfg.crop_iterations + cfg.full_iterations} "
+              f"(best 0 px AUC on the {len(calib)} calibration pours)")
     for split in ("train", "test"):
         print(f"  {split:<5} AUC " + "  ".join(f"{k} px {100 * v:.1f}%" for k, v in auc[split].items()))
     print(f"wrote {args.out}")
