@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from liquidtwin.cli import main
-from liquidtwin.perception import apply_affine, synthetic_board_pair
+from liquidtwin.perception import apply_affine, load_model, synthetic_board_pair
 
 
 def test_register_recovers_a_known_map_from_image_files(tmp_path, capsys):
@@ -63,6 +63,7 @@ def test_evaluate_perception_end_to_end_on_a_tiny_dataset(tmp_path, capsys):
             assert all(0 <= a <= 1 for a in aucs) and aucs == sorted(aucs)     # slack only helps
     assert (out / "pr_curves.png").stat().st_size > 0 and (out / "detections.png").stat().st_size > 0
     assert "selected_step" not in by["fcn"] and not (out / "selection.png").exists()
+    assert load_model(out / "models" / "fcn-grey_flow-early.pt")[1]["selected_step"] is None
     with pytest.raises(SystemExit, match="calibration pours"):      # nothing held out to choose on
         main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--out", str(out), "--select-every", "2"])
     with pytest.raises(SystemExit, match="KIND/INPUT/FUSION"):
@@ -75,7 +76,6 @@ def test_calibration_split_resumes_the_dataset_and_sets_the_threshold(tmp_path, 
     F1-best one of a brute-force sweep over the calibration frames."""
     from liquidtwin.perception.data import TRAIN, load_split
     from liquidtwin.perception.train import detect, encode_clips
-    from liquidtwin.perception.weights import load_model
     data = tmp_path / "data"
     args = ["perception", "data", "--out", str(data), "--train", "1", "--test", "1", "--no-progress"]
     assert main([*args, "--calib", "0"]) == 0

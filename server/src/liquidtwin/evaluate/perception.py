@@ -100,7 +100,8 @@ def _train_one(work) -> dict:
         if split == "test":
             np.save(Path(out) / "models" / f"{kind}-{input_type}-{fusion}.test0.npy", probs[0].astype(np.float16))
     save_model(Path(out) / "models" / f"{kind}-{input_type}-{fusion}.pt", net,
-               {"trained": info["config"], "dataset": str(data), "test_auc": res["test"]})
+               {"trained": info["config"], "dataset": str(data), "test_auc": res["test"],
+                "selected_step": info.get("selected_step")})
     return res
 
 
@@ -126,8 +127,10 @@ def run(args) -> int:
     if not (args.data / "dataset.json").is_file():
         n_train = args.train_seqs or (8 if args.quick else 12)
         n_test = args.test_seqs or (3 if args.quick else 4)
-        print(f"generating the perception dataset in {args.data} ({n_train} train + {n_test} test pours)")
-        make_dataset(args.data, train=n_train, test=n_test, calib=3 if args.select_every else 0, seed=args.seed,
+        n_calib = 3 if args.select_every else 0
+        print(f"generating the perception dataset in {args.data} ({n_train} train + {n_test} test + {n_calib} "
+              "calibration pours)")
+        make_dataset(args.data, train=n_train, test=n_test, calib=n_calib, seed=args.seed,
                      progress=not args.no_progress)
     if args.select_every and not load_split(args.data, "calib"):
         raise SystemExit(f"--select-every chooses on the dataset's calibration pours and {args.data} has none; "
