@@ -29,6 +29,7 @@ QUICK_GRID = [("fcn", "grey_flow", "early"), ("mf_fcn", "grey_flow", "early"), (
 
 
 def configure(p) -> None:
+    from ..perception.inputs import AUGMENT_HELP
     p.add_argument("--data", type=Path, default=Path("eval-data/perception"), metavar="DIR",
                    help="perception dataset (generated when missing; default: %(default)s)")
     p.add_argument("--out", type=Path, default=Path("eval-perception"), metavar="DIR",
@@ -47,6 +48,8 @@ def configure(p) -> None:
                         "calibration split every N steps and keep the best weights (0: keep the last; "
                         "default: %(default)s). The test pours are scored at the same steps for the record "
                         "(selection.png) but never choose")
+    p.add_argument("--augment", default="", metavar="flip,colour",
+                   help=AUGMENT_HELP)
     p.add_argument("--seed", type=int, default=0, help="dataset and training seed (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=2, help="networks trained in parallel (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
@@ -81,10 +84,10 @@ def _train_one(work) -> dict:
     from ..perception.data import load_split
     from ..perception.train import TrainConfig, detect, encode_clips, train
     from ..perception import load_model
-    (kind, input_type, fusion), data, out, crop_it, full_it, seed, select_every = work
+    (kind, input_type, fusion), data, out, crop_it, full_it, seed, select_every, augment = work
     train_clips, test_clips = load_split(data, "train"), load_split(data, "test")
     cfg = TrainConfig(kind=kind, input_type=input_type, fusion=fusion, crop_iterations=crop_it,
-                      full_iterations=full_it, seed=seed, select_every=select_every)
+                      full_iterations=full_it, seed=seed, select_every=select_every, augment=augment)
     init = Path(out) / "models" / f"fcn-{input_type}-{fusion}.pt"
     init = init if kind != "fcn" and init.is_file() else None
     net, info = train(train_clips, cfg, progress=False, init=None if init is None else load_model(init)[0],
@@ -121,7 +124,12 @@ def run(args) -> int:
     from ..perception.data import load_split, make_dataset
     from .cli import save_results
     from .tracking import map_jobs
+    from ..perception.inputs import parse_augment
     grid = _grid(args)
+    try:
+        augment = parse_augment(args.augment)
+    except ValueError as e:
+        raise SystemExit(f"--augment: {e}")
     if args.select_every < 0:
         raise SystemExit(f"--select-every takes N >= 0 steps, got {args.select_every}")
     if not (args.data / "dataset.json").is_file():
@@ -143,8 +151,8 @@ def run(args) -> int:
     results = []
     bar = tqdm(total=len(grid), desc="networks", unit="net", disable=args.no_progress)
     for phase in ([g for g in grid if g[0] == "fcn"], [g for g in grid if g[0] != "fcn"]):
-        work = [(g, args.data, args.out, args.crop_iterations, args.full_iterations, args.seed, args.select_every)
-                for g in phase]
+        work = [(g, args.data, args.out, args.crop_iterations, args.full_iterations, args.seed, args.select_every,
+                 augment) for g in phase]
         for r in map_jobs(_train_one, work, args.jobs):
             results.append(r)
             bar.update()
@@ -152,7 +160,7 @@ def run(args) -> int:
     best = max(results, key=lambda r: r["test"]["0"])
     doc = {"kind": "perception", "quick": args.quick, "seed": args.seed, "data": str(args.data),
            "slacks": list(SLACKS), "iterations": {"crop": args.crop_iterations, "full": args.full_iterations},
-           "select_every": args.select_every, "wall_s": time.perf_counter() - t0, "baseline": base, "results": results,
+           "select_every": args.select_every, "augment": augment, "wall_s": time.perf_counter() - t0, "baseline": base, "results": results,
            "headline": {"name": f"best test AUC (0 px slack): {best['kind']}/{best['input_type']}/{best['fusion']}",
                         "value": best["test"]["0"], "unit": "AUC"}}
     out = save_results(args.out, doc)

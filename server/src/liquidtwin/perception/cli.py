@@ -21,7 +21,7 @@ HELP = "liquid detection from RGB: make the dataset, train a detector, run one o
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    from .inputs import FUSIONS, INPUTS
+    from .inputs import AUGMENT_HELP, FUSIONS, INPUTS
     from .nets import KINDS
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     d = sub.add_parser("data", help="generate the training and unseen-container test pours",
@@ -46,6 +46,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     t.add_argument("--select-every", type=int, default=0, metavar="N",
                    help="score on the calibration pours every N steps and keep the best weights "
                         "(0: keep the last; default: %(default)s)")
+    t.add_argument("--augment", default="", metavar="flip,colour",
+                   help=AUGMENT_HELP)
     t.add_argument("--init", type=Path, default=None, metavar="FCN.pt",
                    help="start the input block from this trained detector (same input and fusion)")
     t.add_argument("--seed", type=int, default=0, help="(default: %(default)s)")
@@ -140,8 +142,13 @@ def _train(args) -> int:
     from ..evaluate.perception import scores_auc
     from .data import SIZE, load_split
     from .nets import parameter_count
+    from .inputs import parse_augment
     from .train import TrainConfig, detect, encode_clips, train
     from .weights import save_model
+    try:
+        augment = parse_augment(args.augment)
+    except ValueError as e:
+        raise SystemExit(f"--augment: {e}")
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     calib = load_split(args.data, "calib")
@@ -150,7 +157,8 @@ def _train(args) -> int:
                          f"{len(calib)} (add them with `liquidtwin perception data --out {args.data} --calib 3`)")
     train_clips, test_clips = load_split(args.data, "train"), load_split(args.data, "test")
     cfg = TrainConfig(kind=args.kind, input_type=args.input, fusion=args.fusion, crop_iterations=args.crop_iterations,
-                      full_iterations=args.full_iterations, seed=args.seed, select_every=args.select_every)
+                      full_iterations=args.full_iterations, seed=args.seed, select_every=args.select_every,
+                      augment=augment)
     from .weights import load_model
     init = load_model(args.init)[0] if args.init else None
     net, info = train(train_clips, cfg, progress=not args.no_progress, init=init, select_on=calib or None)

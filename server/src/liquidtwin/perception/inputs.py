@@ -21,6 +21,20 @@ INPUTS: dict[str, tuple[int, ...]] = {
 }
 FUSIONS = ("early", "late")
 
+AUGMENTS = ("flip", "colour")
+AUGMENT_HELP = ("training augmentation: flip (mirror left-right, the flow's angle mirrored too), colour (random "
+                "gain, shift and RGB channel order of the image planes), flip,colour, or none (default: none)")
+
+
+def parse_augment(text: str) -> str:
+    """Canonical augmentation string ("", "flip", "colour", "flip,colour"); clear error otherwise."""
+    parts = [a.strip() for a in (text or "").split(",") if a.strip() and a.strip() != "none"]
+    bad = sorted(set(parts) - set(AUGMENTS))
+    if bad:
+        raise ValueError(f"unknown augmentation {', '.join(bad)}; choose from {', '.join(AUGMENTS)} "
+                         "(comma-separated) or none")
+    return ",".join(a for a in AUGMENTS if a in parts)
+
 
 def check_input(input_type: str, fusion: str = "early") -> tuple[int, ...]:
     """Channel groups of ``input_type``; clear error for unknown names."""

@@ -32,7 +32,7 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from .data import Clip
-from .inputs import FrameEncoder
+from .inputs import INPUTS, FrameEncoder, parse_augment
 from .metrics import auc
 from .nets import build_model
 
@@ -51,6 +51,38 @@ class TrainConfig:
     negative_weight: float = 0.1
     seed: int = 0
     select_every: int = 0       # score on held-out pours every this many steps, keep the best (0: off)
+    augment: str = ""           # "flip", "colour" or "flip,colour": see augment_window (empty: none)
+
+
+def augment_window(rng, x: np.ndarray, y: np.ndarray, input_type: str, augment: str):
+    """One training window's augmentation, the same for all its frames: x (T, C, h, w) inputs,
+    y (T, h, w) masks; returns new arrays.
+
+    - ``flip``: mirror left–right with probability ½. The mirror image of a pour is a pour
+      (the physics has no handedness; gravity has a direction, so never up–down). The
+      flow's angle θ = atan2(dy, dx) becomes π − θ: its cosine plane changes sign where
+      there is flow (zero flow keeps the encoder's sin 0, cos 1).
+    - ``colour``: the image planes only (not flow): each channel scaled by U(0.7, 1.3) and
+      shifted by U(−0.1, 0.1), clipped to [0, 1]; RGB channels also put in a random order.
+      Water takes its look from what is behind it, so a detector should not key on the
+      training containers' colours.
+    """
+    groups = INPUTS[input_type]
+    n_image = 0 if input_type == "flow" else groups[0]
+    if "flip" in augment and rng.random() < 0.5:
+        x, y = x[..., ::-1].copy(), y[..., ::-1].copy()
+        if "flow" in input_type:
+            cos, mag = n_image + 1, n_image + 2
+            x[:, cos] = np.where(x[:, mag] > 0, -x[:, cos], x[:, cos])
+    if "colour" in augment and n_image:
+        img = x[:, :n_image]
+        if n_image == 3:
+            img = img[:, rng.permutation(3)]
+        gain = rng.uniform(0.7, 1.3, n_image).astype(np.float32)[None, :, None, None]
+        shift = rng.uniform(-0.1, 0.1, n_image).astype(np.float32)[None, :, None, None]
+        x = x.copy()
+        x[:, :n_image] = np.clip(img * gain + shift, 0.0, 1.0)
+    return x, y
 
 
 def encode_clips(clips: list[Clip], input_type: str) -> list[np.ndarray]:
@@ -65,8 +97,9 @@ def weighted_bce(logits: torch.Tensor, truth: torch.Tensor, negative_weight: flo
     return F.binary_cross_entropy_with_logits(logits, truth, weight=w)
 
 
-def _sample(rng, inputs, clips, cfg: TrainConfig, crop: bool):
-    """One batch: x (B, T, C, h, w), y (B, T, 1, h, w)."""
+def _sample(rng, inputs, clips, cfg: TrainConfig, crop: bool, aug_rng=None):
+    """One batch: x (B, T, C, h, w), y (B, T, 1, h, w). Augmentation draws from its own
+    ``aug_rng``, so the windows and crops are those of the same seed without it."""
     xs, ys = [], []
     for _ in range(cfg.batch):
         while True:
@@ -84,6 +117,8 @@ def _sample(rng, inputs, clips, cfg: TrainConfig, crop: bool):
             y0 = int(np.clip(ty - rng.integers(c), 0, y.shape[1] - c))
             x0 = int(np.clip(tx - rng.integers(c), 0, y.shape[2] - c))
             x, y = x[:, :, y0:y0 + c, x0:x0 + c], y[:, y0:y0 + c, x0:x0 + c]
+        if cfg.augment:
+            x, y = augment_window(aug_rng, x, y, cfg.input_type, cfg.augment)
         xs.append(x)
         ys.append(y[:, None])
     return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys).astype(np.float32))
@@ -114,8 +149,11 @@ def train(clips: list[Clip], cfg: TrainConfig = TrainConfig(), *, progress: bool
     if cfg.select_every and not select_on:
         raise ValueError("select_every > 0 needs held-out pours to choose on (select_on: the dataset's "
                          "calibration split; add one with `liquidtwin perception data --calib 3`)")
+    if parse_augment(cfg.augment) != cfg.augment:
+        raise ValueError(f"augment must be one of '', 'flip', 'colour', 'flip,colour'; got {cfg.augment!r}")
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
+    aug_rng = np.random.default_rng([cfg.seed, 1])
     net = build_model(cfg.kind, cfg.input_type, cfg.fusion)
     if init is not None:
         init_encoder(net, init)
@@ -132,7 +170,7 @@ def train(clips: list[Clip], cfg: TrainConfig = TrainConfig(), *, progress: bool
                leave=False)
     net.train()
     for it in bar:
-        x, y = _sample(rng, inputs, clips, cfg, crop=it < cfg.crop_iterations)
+        x, y = _sample(rng, inputs, clips, cfg, crop=it < cfg.crop_iterations, aug_rng=aug_rng)
         loss = weighted_bce(net(x), y, cfg.negative_weight)
         opt.zero_grad()
         loss.backward()
