@@ -68,6 +68,9 @@ def test_evaluate_perception_end_to_end_on_a_tiny_dataset(tmp_path, capsys):
         main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--out", str(out), "--select-every", "2"])
     with pytest.raises(SystemExit, match="KIND/INPUT/FUSION"):
         main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--models", "unet/rgb/early"])
+    with pytest.raises(SystemExit, match="--augment: unknown augmentation"):
+        main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--augment", "flip,jitter"])
+    assert doc["augment"] == ""
 
 
 def test_calibration_split_resumes_the_dataset_and_sets_the_threshold(tmp_path, capsys):
@@ -105,9 +108,13 @@ def test_calibration_split_resumes_the_dataset_and_sets_the_threshold(tmp_path, 
 
     chosen = tmp_path / "chosen.pt"                   # training length chosen on the same pours
     assert main(["perception", "train", "--data", str(data), "--kind", "fcn", "--crop-iterations", "3",
-                 "--full-iterations", "2", "--select-every", "2", "--out", str(chosen), "--no-progress"]) == 0
+                 "--full-iterations", "2", "--select-every", "2", "--augment", "colour,flip", "--out", str(chosen),
+                 "--no-progress"]) == 0
     assert "best 0 px AUC on the 1 calibration pours" in capsys.readouterr().out
-    assert load_model(chosen)[1]["selected_step"] in (2, 4, 5)
+    chosen_meta = load_model(chosen)[1]
+    assert chosen_meta["selected_step"] in (2, 4, 5) and chosen_meta["trained"]["augment"] == "flip,colour"
+    with pytest.raises(SystemExit, match="--augment: unknown augmentation rotate"):
+        main(["perception", "train", "--data", str(data), "--augment", "rotate", "--out", str(tmp_path / "x.pt")])
 
     capsys.readouterr()
     assert main(["perception", "calibrate", str(model), "--data", str(data), "--out", str(tmp_path / "c.pt")]) == 0
