@@ -63,7 +63,8 @@ def test_evaluate_perception_end_to_end_on_a_tiny_dataset(tmp_path, capsys):
             assert all(0 <= a <= 1 for a in aucs) and aucs == sorted(aucs)     # slack only helps
     assert (out / "pr_curves.png").stat().st_size > 0 and (out / "detections.png").stat().st_size > 0
     assert "selected_step" not in by["fcn"] and not (out / "selection.png").exists()
-    assert load_model(out / "models" / "fcn-grey_flow-early.pt")[1]["selected_step"] is None
+    fcn_meta = load_model(out / "models" / "fcn-grey_flow-early.pt")[1]
+    assert fcn_meta["selected_step"] is None and fcn_meta["size"] == [160, 120]    # a detector a session can run
     with pytest.raises(SystemExit, match="calibration pours"):      # nothing held out to choose on
         main(["evaluate", "perception", "--data", str(tmp_path / "data"), "--out", str(out), "--select-every", "2"])
     with pytest.raises(SystemExit, match="KIND/INPUT/FUSION"):

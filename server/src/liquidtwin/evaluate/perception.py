@@ -81,7 +81,7 @@ def _train_one(work) -> dict:
     import torch
     torch.set_num_threads(1)
     from ..perception import parameter_count, save_model
-    from ..perception.data import load_split
+    from ..perception.data import SIZE, load_split
     from ..perception.train import TrainConfig, detect, encode_clips, train
     from ..perception import load_model
     (kind, input_type, fusion), data, out, crop_it, full_it, seed, select_every, augment = work
@@ -103,7 +103,7 @@ def _train_one(work) -> dict:
         if split == "test":
             np.save(Path(out) / "models" / f"{kind}-{input_type}-{fusion}.test0.npy", probs[0].astype(np.float16))
     save_model(Path(out) / "models" / f"{kind}-{input_type}-{fusion}.pt", net,
-               {"trained": info["config"], "dataset": str(data), "test_auc": res["test"],
+               {"size": list(SIZE), "trained": info["config"], "dataset": str(data), "test_auc": res["test"],
                 "selected_step": info.get("selected_step")})
     return res
 

@@ -190,7 +190,7 @@ def _train(args) -> int:
 def _calibrate(args) -> int:
     import numpy as np
 
-    from .data import load_split
+    from .data import SIZE, load_split
     from .metrics import pr_curve
     from .train import detect, encode_clips
     from .weights import load_model, save_model
@@ -209,7 +209,8 @@ def _calibrate(args) -> int:
         f1 = 2 * p[k] * r[k] / max(p[k] + r[k], 1e-12)
         return f1 / (2 - f1)
     old = float(meta.get("threshold", 0.5))
-    meta = {**meta, "threshold": thr, "threshold_from": {"split": "calib", "pours": len(clips),
+    # a model file of `evaluate perception` made before it stored the size was trained at SIZE
+    meta = {"size": list(SIZE), **meta, "threshold": thr, "threshold_from": {"split": "calib", "pours": len(clips),
                                                          "dataset_seed": json.loads(
                                                              (args.data / "dataset.json").read_text())["seed"]}}
     out = args.out or args.model
