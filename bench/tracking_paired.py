@@ -19,15 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from liquidtwin.evaluate.tracking import series_mean
+
 MIN_PX = 50
-
-
-def _detector_iou(case: dict, min_px: int) -> float | None:
-    s = case.get("detector")
-    if not s:
-        return None
-    v = [i for i, n in zip(s["iou"], s["observed_px"]) if n >= min_px]
-    return float(np.mean(v)) if v else None
 
 
 def paired(a: dict, b: dict, *, min_px: int = MIN_PX, resamples: int = 5000, seed: int = 0) -> list[dict]:
@@ -38,7 +32,8 @@ def paired(a: dict, b: dict, *, min_px: int = MIN_PX, resamples: int = 5000, see
         raise SystemExit("the two runs share no recording: compare runs over the same --data and cases")
     columns = [c for c in ca[common[0]]["mean_iou"] if c != "ceiling" and c in cb[common[0]]["mean_iou"]]
     values = {c: [(ca[k]["mean_iou"].get(c), cb[k]["mean_iou"].get(c)) for k in common] for c in columns}
-    values["detector mask"] = [(_detector_iou(ca[k], min_px), _detector_iou(cb[k], min_px)) for k in common]
+    values["detector mask"] = [(series_mean(ca[k].get("detector"), min_px), series_mean(cb[k].get("detector"), min_px))
+                              for k in common]
     rng = np.random.default_rng(seed)
     out = []
     for col, pairs in values.items():

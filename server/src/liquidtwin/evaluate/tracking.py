@@ -233,7 +233,7 @@ def run(args) -> int:
     bar = tqdm(total=len(work), desc="replay", unit="case", disable=args.no_progress)
     for case, path, r in zip(case_list, paths, map_jobs(_evaluate_one, work, args.jobs)):
         bar.update()
-        means = {k: _mean(v, args.min_px) for k, v in r["series"].items()}
+        means = {k: series_mean(v, args.min_px) for k, v in r["series"].items()}
         results.append({"case": case.as_dict(), "recording": str(path), "mean_iou": means, **r})
     bar.close()
     columns = columns_for(trackers, masks)
@@ -284,7 +284,8 @@ def map_jobs(fn, work: list, jobs: int):
         yield from pool.imap(fn, work)
 
 
-def _mean(s: dict | None, min_px: int) -> float | None:
+def series_mean(s: dict | None, min_px: int) -> float | None:
+    """Mean IOU of a per-frame series over frames whose observed mask has >= ``min_px`` px."""
     if s is None:
         return None
     v = [i for i, n in zip(s["iou"], s["observed_px"]) if n >= min_px]
