@@ -51,6 +51,19 @@ REFERENCE_SIZE = (480, 640)     # (height, width), px
 #: 0–0.5 and caps 0.25–0.5 h, subject to staying stable on a full bowl seen whole (2.3k
 #: particles, 640×480): the earlier share 1 / cap 1 h injected ~0.3 m/s per frame there and
 #: threw two thirds of the liquid out of the bowl within 2 s (tests/server/test_tracking_warp.py).
+#:
+#: Checked again at stop 39 and kept. At 600 the field is saturated: 87–94 % of the seen
+#: particles move exactly the cap every frame, so the pull acts as a fixed-speed direction
+#: field (``python bench/warp_gain.py --data DIR --gains 600,50,50 --max-move 0.25,0.25,0.5``
+#: on the 18 quick pours of ``liquidtwin evaluate tracking --quick --trials 1 --seed S --data
+#: DIR``). A proportional gain, 50 (28–34 % at the cap), scored a little higher on the
+#: benchmark: pooled IOU seed 100 (where 50 was the best of 25–600 at caps h/2 and h) 0.248 →
+#: 0.269, seed 0 0.237 → 0.274, seed 200 0.253 → 0.273; pour by pour on seeds 0 and 200
+#: +0.016 (95 % interval +0.001 to +0.035, 19 of 34 pours better). But it stalls short of a
+#: displaced body of liquid: the cloud of ``test_displaced_cloud_moves_toward_the_observed_
+#: liquid``, 5 cm off, reaches IOU 0.94 at 600 and stops at 0.59 at 50 after 80 frames (the
+#: coverage weighting fades the pull as the clouds overlap, and a low gain leaves a steady
+#: offset). A tracker that cannot close a plain offset is the worse default.
 DEFAULT_GAIN = 600.0
 DEFAULT_VELOCITY_SHARE = 0.2
 DEFAULT_MAX_MOVE = 0.25
