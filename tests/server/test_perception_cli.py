@@ -117,7 +117,18 @@ def test_calibration_split_resumes_the_dataset_and_sets_the_threshold(tmp_path, 
     with pytest.raises(SystemExit, match="--augment: unknown augmentation rotate"):
         main(["perception", "train", "--data", str(data), "--augment", "rotate", "--out", str(tmp_path / "x.pt")])
 
-    capsys.readouterr()
+    capsys.readouterr()                              # score: the AUCs train printed, read back without training
+    out_json = tmp_path / "score.json"
+    assert main(["perception", "score", str(model), "--data", str(data), "--splits", "train", "test",
+                 "--json", str(out_json)]) == 0
+    text = capsys.readouterr().out
+    assert "fcn/grey_flow/early on" in text and "test   1 pours:" in text and "flow baseline" in text
+    scored = json.loads(out_json.read_text())["splits"]
+    assert scored["test"]["auc"] == pytest.approx(meta["auc"]["test"]) and scored["train"]["auc"] == pytest.approx(meta["auc"]["train"])
+    assert 0 <= scored["test"]["baseline"]["0"] <= scored["test"]["baseline"]["4"] <= 1
+    with pytest.raises(SystemExit, match="not a perception dataset"):
+        main(["perception", "score", str(model), "--data", str(tmp_path)])
+
     assert main(["perception", "calibrate", str(model), "--data", str(data), "--out", str(tmp_path / "c.pt")]) == 0
     assert "F1-best on 1 calibration pours" in capsys.readouterr().out
     _, meta2 = load_model(tmp_path / "c.pt")

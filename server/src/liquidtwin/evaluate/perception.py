@@ -108,13 +108,16 @@ def _train_one(work) -> dict:
     return res
 
 
-def _baseline(data) -> dict:
+def baseline_auc(data, splits=("train", "test")) -> dict:
+    """{split: AUC per slack} of the optical-flow baseline (§4.5.3) on a dataset's splits
+    (splits with no pours left out)."""
     from ..perception import baseline_scores
     from ..perception.data import load_split
     res = {}
-    for split in ("train", "test"):
+    for split in splits:
         clips = load_split(data, split)
-        res[split] = scores_auc([baseline_scores(c.frames) for c in clips], clips)
+        if clips:
+            res[split] = scores_auc([baseline_scores(c.frames) for c in clips], clips)
     return res
 
 
@@ -146,7 +149,7 @@ def run(args) -> int:
                          f"{json.loads((args.data / 'dataset.json').read_text())['seed']}`")
     (args.out / "models").mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    base = _baseline(args.data)
+    base = baseline_auc(args.data)
     # FCNs first: the multi-frame and recurrent networks start from the FCN of their input (thesis)
     results = []
     bar = tqdm(total=len(grid), desc="networks", unit="net", disable=args.no_progress)

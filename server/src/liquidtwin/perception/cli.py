@@ -60,6 +60,16 @@ def configure(p: argparse.ArgumentParser) -> None:
     c.add_argument("model", type=Path, metavar="MODEL.pt")
     c.add_argument("--data", type=Path, required=True, metavar="DIR", help="a dataset with a calib split")
     c.add_argument("--out", type=Path, default=None, metavar="MODEL.pt", help="write here (default: over MODEL)")
+    sc = sub.add_parser("score", help="a trained detector's AUC on a dataset's splits",
+                        description="score MODEL on DATA's pours without training: AUC of the precision-recall "
+                                    "curve at 0/1/2/4 px slack per split, beside the optical-flow baseline's "
+                                    "(thesis §4.5.3). Use it to check a model on pours it has not seen, e.g. a "
+                                    "dataset made with another --seed")
+    sc.add_argument("model", type=Path, metavar="MODEL.pt")
+    sc.add_argument("--data", type=Path, required=True, metavar="DIR", help="a dataset of `perception data`")
+    sc.add_argument("--splits", nargs="+", default=["test"], choices=["train", "test", "calib"],
+                    help="which splits (default: test)")
+    sc.add_argument("--json", type=Path, default=None, metavar="OUT.json", help="also write the AUCs here")
     g = sub.add_parser("register", help="thermal → colour affine map from heated-chessboard image pairs",
                        description="fit the thermal → colour affine map from one or more heated-chessboard pairs "
                                    "(findChessboardCorners in both, least squares); prints it and the RMS")
@@ -98,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
         return _calibrate(args)
     if args.action == "register":
         return _register(args)
+    if args.action == "score":
+        return _score(args)
     return _detect(args)
 
 
@@ -218,6 +230,34 @@ def _calibrate(args) -> int:
     print(f"threshold {old:.2f} → {thr:.2f} (F1-best on {len(clips)} calibration pours); "
           f"pixel IOU there {iou(old):.3f} → {iou(thr):.3f}")
     print(f"wrote {out}")
+    return 0
+
+
+def _score(args) -> int:
+    from ..evaluate.perception import baseline_auc, scores_auc
+    from .data import load_split
+    from .train import detect, encode_clips
+    from .weights import load_model
+    if not (args.data / "dataset.json").is_file():
+        raise SystemExit(f"{args.data} is not a perception dataset (no dataset.json); make one with "
+                         f"`liquidtwin perception data --out {args.data}`")
+    net, meta = load_model(args.model)
+    doc = {"model": str(args.model), "data": str(args.data), "splits": {}}
+    name = f"{meta.get('kind', '?')}/{meta['input_type']}/{meta.get('fusion', '?')}"
+    print(f"{name} on {args.data} (AUC, 0 / 1 / 2 / 4 px slack)")
+    for split in args.splits:
+        clips = load_split(args.data, split)
+        if not clips:
+            print(f"  {split:<6} no pours")
+            continue
+        auc = scores_auc([detect(net, x) for x in encode_clips(clips, meta["input_type"])], clips)
+        base = baseline_auc(args.data, (split,))[split]
+        doc["splits"][split] = {"pours": len(clips), "auc": auc, "baseline": base}
+        fmt = lambda a: " / ".join(f"{100 * a[k]:.1f}" for k in sorted(a, key=int))
+        print(f"  {split:<6} {len(clips)} pours: {fmt(auc)} %   (flow baseline {fmt(base)} %)")
+    if args.json:
+        args.json.write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"wrote {args.json}")
     return 0
 
 
