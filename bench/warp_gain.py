@@ -75,20 +75,7 @@ def sweep(data: Path, settings: list[tuple[float, float]], *, frames: int | None
     return runs
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
-                                epilog=__doc__.split("\n\n", 1)[1])
-    p.add_argument("--data", type=Path, required=True, help="recordings of `liquidtwin evaluate tracking --data DIR`")
-    p.add_argument("--gains", default="600,50", help="comma-separated gains (px at 640x480 per unit field)")
-    p.add_argument("--max-move", default="0.5", help="comma-separated caps, kernel radii h (one for all, or one per gain)")
-    p.add_argument("--frames", type=int, default=None, help="only the first N pose samples of each recording")
-    p.add_argument("--out", type=Path, default=None, help="write every run's per-pour means as JSON")
-    args = p.parse_args(argv)
-    gains = [float(g) for g in args.gains.split(",")]
-    caps = [float(c) for c in args.max_move.split(",")]
-    if len(caps) not in (1, len(gains)):
-        raise SystemExit(f"--max-move takes one cap or one per gain ({len(gains)}), got {len(caps)}")
-    runs = sweep(args.data, list(zip(gains, caps * len(gains) if len(caps) == 1 else caps)), frames=args.frames)
+def _print_paired(runs: list[dict]) -> None:
     base = runs[0]
     print(f"\npour by pour against gain {base['gain']:g}, cap {base['max_move']:g} h ({len(base['cases'])} pours; "
           "pours with no frame >= 50 px left out):")
@@ -97,6 +84,42 @@ def main(argv=None) -> int:
         w = next(x for x in d if x["column"] == "warp_field")
         print(f"  gain {run['gain']:g}, cap {run['max_move']:g} h: {w['mean_diff']:+.3f} "
               f"({w['low']:+.3f} to {w['high']:+.3f}), better on {w['b_better']}/{w['pours']}")
+
+
+def _combine(paths: list[Path]) -> int:
+    docs = [json.loads(p.read_text())["runs"] for p in paths]
+    settings = [[(r["gain"], r["max_move"]) for r in d] for d in docs]
+    if any(s != settings[0] for s in settings):
+        raise SystemExit(f"the sweeps do not share their settings in order: {settings}")
+    runs = [{**doc_runs[0], "cases": [{**c, "recording": f"{i}/{c['recording']}"}
+                                      for i, d in enumerate(docs) for c in d[k]["cases"]]}
+            for k, doc_runs in enumerate(zip(*docs))]
+    _print_paired(runs)
+    return 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog=__doc__.split("\n\n", 1)[1])
+    p.add_argument("--data", type=Path, default=None, help="recordings of `liquidtwin evaluate tracking --data DIR`")
+    p.add_argument("--combine", type=Path, nargs="+", default=None, metavar="SWEEP.json",
+                   help="instead of sweeping: pool the pours of earlier --out files (same settings in the same "
+                        "order, e.g. one per base seed) and print each setting's paired difference from the first")
+    p.add_argument("--gains", default="600,50", help="comma-separated gains (px at 640x480 per unit field)")
+    p.add_argument("--max-move", default="0.5", help="comma-separated caps, kernel radii h (one for all, or one per gain)")
+    p.add_argument("--frames", type=int, default=None, help="only the first N pose samples of each recording")
+    p.add_argument("--out", type=Path, default=None, help="write every run's per-pour means as JSON")
+    args = p.parse_args(argv)
+    if args.combine:
+        return _combine(args.combine)
+    if args.data is None:
+        p.error("--data DIR is needed (or --combine SWEEP.json …)")
+    gains = [float(g) for g in args.gains.split(",")]
+    caps = [float(c) for c in args.max_move.split(",")]
+    if len(caps) not in (1, len(gains)):
+        raise SystemExit(f"--max-move takes one cap or one per gain ({len(gains)}), got {len(caps)}")
+    runs = sweep(args.data, list(zip(gains, caps * len(gains) if len(caps) == 1 else caps)), frames=args.frames)
+    _print_paired(runs)
     if args.out:
         args.out.write_text(json.dumps({"data": str(args.data), "runs": runs}, indent=1) + "\n")
     return 0

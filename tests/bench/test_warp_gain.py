@@ -43,6 +43,9 @@ def test_cli_prints_the_paired_difference_and_writes_json(data, tmp_path):
     assert "gain 600, cap 0.25 h: pooled IOU" in p.stdout and "better on" in p.stdout
     doc = json.loads(out.read_text())
     assert [r["gain"] for r in doc["runs"]] == [600.0, 50.0]
+    pooled = subprocess.run([sys.executable, str(ROOT / "bench" / "warp_gain.py"), "--combine", str(out), str(out)],
+                            capture_output=True, text=True, timeout=60)
+    assert pooled.returncode == 0 and "(2 pours;" in pooled.stdout, pooled.stdout + pooled.stderr
     bad = subprocess.run([sys.executable, str(ROOT / "bench" / "warp_gain.py"), "--data", str(data), "--gains", "1,2,3",
                           "--max-move", "0.1,0.2"], capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "one cap or one per gain" in bad.stderr

@@ -59,7 +59,7 @@ REFERENCE_SIZE = (480, 640)     # (height, width), px
 #: DIR``). A proportional gain, 50 (28–34 % at the cap), scored a little higher on the
 #: benchmark: pooled IOU seed 100 (where 50 was the best of 25–600 at caps h/2 and h) 0.248 →
 #: 0.269, seed 0 0.237 → 0.274, seed 200 0.253 → 0.273; pour by pour on seeds 0 and 200
-#: +0.016 (95 % interval +0.001 to +0.035, 19 of 34 pours better). But it stalls short of a
+#: +0.016 (95 % interval +0.001 to +0.036, 19 of 34 pours better). But it stalls short of a
 #: displaced body of liquid: a cloud 5 cm off reaches IOU 0.94 at 600 and stops at 0.59 at 50
 #: after 80 frames (the coverage weighting fades the pull as the clouds overlap, and a low
 #: gain leaves a steady offset; tests/server/test_tracking_warp.py asserts it). A tracker
