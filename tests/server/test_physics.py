@@ -162,8 +162,8 @@ def _deep_cup_at_rest(iterations: int):
 def test_deep_liquid_stays_at_rest_with_the_generators_solver_iterations():
     """Hydrostatic rest: liquid settled in a container must stay there. The pressure solve
     spreads its correction a few rest spacings per iteration, so deep liquid needs enough
-    iterations; with too few the column bounces and boils over (SPEC's K = 3 was for shallower
-    liquid at h = 0.1). The generator's rule (``generate.world.model_iterations``) gives this
+    iterations; with too few the column bounces and boils over, or collapses (SPEC's K = 3 was
+    for shallower liquid at h = 0.1). The generator's rule (``generate.world.model_iterations``) gives this
     cup 6; at 4 it boils."""
     from liquidtwin.generate.world import MODEL_ITERATIONS
     from liquidtwin.geometry import build
@@ -174,4 +174,9 @@ def test_deep_liquid_stays_at_rest_with_the_generators_solver_iterations():
     speed, change, _ = _deep_cup_at_rest(k)
     assert speed < 0.02 and abs(change) < 0.02, (speed, change)
     speed4, change4, _ = _deep_cup_at_rest(MODEL_ITERATIONS)
-    assert speed4 > 5 * speed and speed4 > 0.05, (speed4, speed, change4)   # measured: 0.37 against 0.004 m/s
+    # At 4 the column does not hold. How it fails depends on the CPU's float rounding (the
+    # settling is chaotic): it boiled on the machines this was written on (0.37 against
+    # 0.004 m/s, −17 % volume) and collapsed on a Sapphire Rapids one (0.010 m/s, −42 %).
+    boils = speed4 > 5 * speed and speed4 > 0.05
+    collapses = change4 < -0.1 and abs(change4) > 5 * abs(change)
+    assert boils or collapses, (speed4, speed, change4, change)
