@@ -261,8 +261,12 @@ def test_a_fill_error_above_the_rim_starts_the_source_full(tmp_path):
     cup = sim.scene.objects[sim.source_index]
     stated = sim.scene.fills[sim.source].asked_ml
     over = 1.05 * cup.capacity_ml / stated        # quick scenes fill the full-size cup a fifth
-    n = {scale: len(sim.initial(scale)[0]) for scale in (1.0, over, cup.capacity_ml / stated)}
-    assert n[over] == n[cup.capacity_ml / stated] > 4 * n[1.0]
+    # Every scale past the rim asks for exactly the cup's capacity, so the fills are the same
+    # fill. (Comparing with the scale of the rim itself, rounded to 4 digits, compared a fill a
+    # hair below the rim, whose settled count depends on the CPU's rounding: equal on the
+    # machines this was written on, 3,553 against 3,788 particles on a Sapphire Rapids one.)
+    fills = {scale: sim.initial(scale)[0] for scale in (1.0, over, 2 * over)}
+    assert torch.equal(fills[over], fills[2 * over]) and len(fills[over]) > 4 * len(fills[1.0])
     assert sim.max_fill_scale() == pytest.approx(cup.capacity_ml / stated)
 
 
