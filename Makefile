@@ -50,11 +50,8 @@ apt:
 		$$sudo apt-get update -qq && $$sudo apt-get install -y -qq $$missing; \
 	fi
 
-# MKL_CBWR=AVX2: MKL's conditional numerical reproducibility, so torch's MKL-backed ops give
-# the same floats on AVX-512 machines as on AVX2 ones (stop 39: on a Sapphire Rapids CI-class
-# machine the float32 autograd reference of test_collide_fast moved by 7e-4 without it).
 test: venv apt
-	MKL_CBWR=AVX2 $(PY) -m pytest -q -n $(TEST_JOBS) --dist loadfile --durations=20 tests
+	$(PY) -m pytest -q -n $(TEST_JOBS) --dist loadfile --durations=20 tests
 
 demo: venv
 	$(VENV)/bin/liquidtwin demo $(ARGS)

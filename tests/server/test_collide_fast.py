@@ -214,7 +214,10 @@ def test_missing_extension_falls_back_to_the_same_result(objects, monkeypatch):
 
 @needs_native
 @pytest.mark.parametrize("fixed", [False, True])
-@pytest.mark.parametrize("dtype,tol", [(torch.float32, 2e-5), (torch.float64, 1e-12)])
+# float32: 1e-4 of the gradient's scale. The torch reference goes through MKL, whose AVX-512
+# paths round differently: on a Sapphire Rapids machine one entry moved by 9e-5 of the scale
+# (2e-5 held on AVX2 machines). float64 keeps the tight check.
+@pytest.mark.parametrize("dtype,tol", [(torch.float32, 1e-4), (torch.float64, 1e-12)])
 def test_native_backward_matches_torch_autograd(objects, dtype, tol, fixed):
     """The C++ backward gives the gradients autograd takes through the torch path, for
     positions, moves and both poses, on a move that pushes many particles off walls in many
