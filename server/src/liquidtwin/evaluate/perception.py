@@ -108,16 +108,21 @@ def _train_one(work) -> dict:
     return res
 
 
-def baseline_auc(data, splits=("train", "test")) -> dict:
-    """{split: AUC per slack} of the optical-flow baseline (§4.5.3) on a dataset's splits
-    (splits with no pours left out)."""
+def clips_baseline_auc(clips) -> dict:
+    """AUC per slack of the optical-flow baseline (§4.5.3) over loaded clips."""
     from ..perception import baseline_scores
+    return scores_auc([baseline_scores(c.frames) for c in clips], clips)
+
+
+def baseline_auc(data, splits=("train", "test")) -> dict:
+    """{split: AUC per slack} of the optical-flow baseline on a dataset's splits (splits with
+    no pours left out)."""
     from ..perception.data import load_split
     res = {}
     for split in splits:
         clips = load_split(data, split)
         if clips:
-            res[split] = scores_auc([baseline_scores(c.frames) for c in clips], clips)
+            res[split] = clips_baseline_auc(clips)
     return res
 
 

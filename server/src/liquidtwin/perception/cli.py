@@ -234,7 +234,7 @@ def _calibrate(args) -> int:
 
 
 def _score(args) -> int:
-    from ..evaluate.perception import baseline_auc, scores_auc
+    from ..evaluate.perception import clips_baseline_auc, scores_auc
     from .data import load_split
     from .train import detect, encode_clips
     from .weights import load_model
@@ -251,7 +251,7 @@ def _score(args) -> int:
             print(f"  {split:<6} no pours")
             continue
         auc = scores_auc([detect(net, x) for x in encode_clips(clips, meta["input_type"])], clips)
-        base = baseline_auc(args.data, (split,))[split]
+        base = clips_baseline_auc(clips)
         doc["splits"][split] = {"pours": len(clips), "auc": auc, "baseline": base}
         fmt = lambda a: " / ".join(f"{100 * a[k]:.1f}" for k in sorted(a, key=int))
         print(f"  {split:<6} {len(clips)} pours: {fmt(auc)} %   (flow baseline {fmt(base)} %)")
