@@ -11,8 +11,9 @@ import torch
 from liquidtwin.generate import generate, parse_effect_extra
 from liquidtwin.evaluate.blockage import routing
 from liquidtwin.generate.catalog import QUICK_FILL, build_setup
-from liquidtwin.inference import (DELTA, Bank, Posterior, disagreement, fill_hypotheses, infer_blockage, infer_fill,
-                                  mask_log_likelihood, normalise, slack_radius, score)
+from liquidtwin.inference import (DELTA, Bank, Posterior, disagreement, fill_hypotheses, frame_log_likelihood,
+                                  infer_blockage, infer_fill, mask_log_likelihood, normalise, slack_radius, score)
+from liquidtwin.inference.likelihood import blur_sigma
 from liquidtwin.recordings import read_recording
 
 
@@ -81,6 +82,67 @@ def test_slack_disagreement_matches_brute_force_and_forgives_a_shifted_blob():
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="slack"):
             slack_radius(240, 320, bad)
+
+
+def _gauss_blur_brute(mask: np.ndarray, sigma: float) -> np.ndarray:
+    """Brute force: every pixel gets every mask pixel's weight g(dy)·g(dx), g the Gaussian of
+    σ sampled at whole pixels, cut at ceil(4σ) and normalised to sum 1; zero outside."""
+    r = int(math.ceil(4 * sigma))
+    g = np.exp(-np.arange(-r, r + 1) ** 2 / (2 * sigma ** 2))
+    g /= g.sum()
+    out = np.zeros(mask.shape)
+    for y, x in np.argwhere(mask):
+        for i in range(-r, r + 1):
+            for j in range(-r, r + 1):
+                if 0 <= y + i < mask.shape[0] and 0 <= x + j < mask.shape[1]:
+                    out[y + i, x + j] += g[i + r] * g[j + r]
+    return out
+
+
+def test_blurred_disagreement_matches_brute_force_and_keeps_amounts():
+    rng = np.random.default_rng(5)
+    for sigma in (0.7, 1.5, 3.0):
+        obs, pred = rng.random((24, 30)) < 0.05, rng.random((24, 30)) < 0.08
+        want = np.abs(_gauss_blur_brute(pred, sigma) - _gauss_blur_brute(obs, sigma)).sum()
+        assert disagreement(pred, obs, sigma_px=sigma) == pytest.approx(want, rel=1e-4)
+        assert disagreement(torch.as_tensor(pred), torch.as_tensor(obs), sigma_px=sigma) == pytest.approx(want, rel=1e-4)
+    assert disagreement(pred, obs, sigma_px=0.0) == int((pred != obs).sum())     # no blur: SPEC's exact pixels
+    # What the blur is for. (1) Amounts: a 12x12 blob observed, predicted a quarter of its
+    # pixels (every 4th column) in place. A slack of 3 px forgives that entirely (every
+    # observed pixel has predicted liquid within 3 px); a blur of 3 px does not: the thin
+    # prediction lies inside the blob, so its blur is below the blob's everywhere and it
+    # disagrees on exactly its 108 missing pixels.
+    obs = np.zeros((40, 40), bool)
+    obs[14:26, 14:26] = True
+    thin = np.zeros_like(obs)
+    thin[14:26, 14:26:4] = True
+    assert disagreement(thin, obs, 3.0) == 0
+    assert disagreement(thin, obs, sigma_px=3.0) == pytest.approx(144 - 36, rel=1e-6)
+    # (2) Drops: six 2x2 drops, each predicted 3 px off. Exact pixels count every drop twice
+    # (48), worse than predicting no liquid (24); blurred, the misplaced drops (15.6) beat none (23.9).
+    drops = np.zeros((40, 40), bool)
+    for y, x in ((8, 8), (8, 20), (20, 12), (30, 28), (16, 30), (28, 6)):
+        drops[y:y + 2, x:x + 2] = True
+    off, none = np.roll(drops, 3, axis=1), np.zeros_like(drops)
+    assert disagreement(off, drops) == 48 > disagreement(none, drops) == 24
+    assert disagreement(off, drops, sigma_px=3.0) < 0.7 * disagreement(none, drops, sigma_px=3.0)
+    # A blob much wider than the blur is still charged for its shift (d px per edge and row).
+    shifted = np.roll(obs, 2, axis=1)
+    assert disagreement(shifted, obs, sigma_px=3.0) == pytest.approx(48, rel=0.1)
+    assert disagreement(obs, obs, sigma_px=3.0) == 0.0
+    # Nothing predicted: the blur moves no liquid out of the image here, so all 144 pixels.
+    assert disagreement(np.zeros_like(obs), obs, sigma_px=3.0) == pytest.approx(144, rel=1e-5)
+    # Scaled with the image as the slack; refused when negative, not finite, or with a slack.
+    assert blur_sigma(480, 640, 16) == 16 and blur_sigma(240, 320, 16) == 8
+    sigma = blur_sigma(40, 40, 40.0)
+    assert mask_log_likelihood(thin, obs, blur_px=40.0) == pytest.approx(
+        frame_log_likelihood(disagreement(thin, obs, sigma_px=sigma), 1600), rel=1e-12)
+    assert mask_log_likelihood(thin, obs, blur_px=40.0) < mask_log_likelihood(obs, obs, blur_px=40.0)
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="blur"):
+            mask_log_likelihood(thin, obs, blur_px=bad)
+    with pytest.raises(ValueError, match="not both"):
+        mask_log_likelihood(thin, obs, slack_px=4.0, blur_px=4.0)
 
 
 # ------------------------------------------------------------------ generated scenes

@@ -5,7 +5,7 @@ its own seed (``base_seed + index``); the world's plug is planted with the gener
 ``blockage`` effect (``blockage=0.3:leg=left`` is the partial left plug: the same 30 % plug
 the hypotheses use, ``--partial``; 1.0 closes the leg). Each recording is analysed blind by
 :func:`liquidtwin.inference.infer_blockage` — the five hypotheses simulated one after another
-(``--batched yes``: together) and scored with the δ-likelihood (SPEC §3, ``--slack`` px of slack) — open loop and warp-field tracked. Scoring reads
+(``--batched yes``: together) and scored with the δ-likelihood (SPEC §3, ``--slack`` px of slack or ``--blur``) — open loop and warp-field tracked. Scoring reads
 the truth (``REC.truth.json``) only to mark the true hypothesis.
 
 Table: per recording and tracker, the final probability of every hypothesis (truth marked
@@ -139,7 +139,7 @@ def run(args) -> int:
     from tqdm import tqdm
     from ..inference import infer_blockage
     from ..recordings import read_recording
-    delta, slack = likelihood_options(args)
+    delta, slack, blur = likelihood_options(args)
     if not 0.0 < args.partial < 1.0:
         raise SystemExit(f"--partial must be a blocked fraction in (0, 1), got {args.partial:g}")
     case_list = pipe_cases(quick=args.quick, base_seed=args.seed, partial=args.partial)
@@ -149,7 +149,7 @@ def run(args) -> int:
         rec = read_recording(path, images=False)
         row = {"case": case.as_dict(), "recording": str(path), "modes": {}}
         for mode in args.trackers:
-            post = infer_blockage(rec, tracking=mode, frames=args.frames, delta=delta, slack_px=slack,
+            post = infer_blockage(rec, tracking=mode, frames=args.frames, delta=delta, slack_px=slack, blur_px=blur,
                                   batched=args.batched == "yes", partial=args.partial)
             k = post.names.index(case.truth)
             row["modes"][mode] = post.as_dict() | {
@@ -158,10 +158,10 @@ def run(args) -> int:
         row["planted"] = json.loads(path.with_suffix(".truth.json").read_text())["effect"]     # after the analyses
         results.append(row)
         _save(args, {"kind": "blockage", "partial": True, "cases": results})        # survives an interruption
-    text = format_table(results, args.trackers, args.quick, delta, slack, args.partial)
+    text = format_table(results, args.trackers, args.quick, delta, slack, args.partial, blur)
     print(text)
     doc = {"kind": "blockage", "quick": bool(args.quick), "base_seed": args.seed, "partial_plug": args.partial,
-           "delta": delta, "slack_px": slack,
+           "delta": delta, "slack_px": slack, "blur_px": blur,
            "batched": args.batched == "yes",
            "frames": args.frames, "trackers": list(args.trackers), "table_text": text, "cases": results}
     right = {m: sum(r["modes"][m]["correct"] for r in results) for m in args.trackers}
@@ -177,7 +177,8 @@ def _save(args, doc: dict) -> Path:
     return save_results(args.out, doc)
 
 
-def format_table(results, modes, quick: bool, delta: float, slack: float, partial: float = PARTIAL) -> str:
+def format_table(results, modes, quick: bool, delta: float, slack: float, partial: float = PARTIAL,
+                 blur: float = 0.0) -> str:
     lines = []
     for mode in modes:
         lines.append(f"[{mode}]  final probability per hypothesis (* = truth)")
@@ -194,7 +195,7 @@ def format_table(results, modes, quick: bool, delta: float, slack: float, partia
                          + ("never" if t is None else f"{t:.2f} s").rjust(12))
         lines.append(f"correct {ok}/{len(results)}")
     lines.append(f"{'quick' if quick else 'full'} pipe scenes, partial plug {partial:g} of the leg, delta = {delta}, "
-                 f"slack {slack:g} px at 640x480; "
+                 f"slack {slack:g} px, blur {blur:g} px at 640x480; "
                  f"t(p>=0.99): session time from which the truth keeps >= 0.99")
     return "\n".join(lines)
 

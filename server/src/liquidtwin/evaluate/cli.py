@@ -61,32 +61,41 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                         "90 %% full in full ones). A model setting, not the world's truth")
 
 
-def add_likelihood_options(p: argparse.ArgumentParser, *, batched: str = "yes") -> None:
-    """Options of the δ-likelihood that scores hypothesis banks (fill, blockage); ``batched``:
-    the default of ``--batched``."""
+def add_likelihood_options(p: argparse.ArgumentParser, *, batched: str = "yes", slack: float = 16.0,
+                           blur: float = 0.0) -> None:
+    """Options of the δ-likelihood that scores hypothesis banks (fill, blockage); ``batched``,
+    ``slack``, ``blur``: this command's defaults (giving one of --slack/--blur sets the other to 0)."""
     p.add_argument("--delta", type=float, default=None, metavar="D",
                    help="pixel agreement probability of the likelihood (default: SPEC's 0.50001)")
     p.add_argument("--slack", type=float, default=None, metavar="PX",
                    help="a pixel's label agrees when the other mask has it within PX pixels, at 640x480 and scaled "
-                        "with the image (default: 16, i.e. 8 px on quick 320x240 masks; 0: SPEC's exact pixels)")
+                        f"with the image (default: {slack:g}; 0 with --blur 0: SPEC's exact pixels)")
+    p.add_argument("--blur", type=float, default=None, metavar="PX",
+                   help="compare the masks smoothed by a Gaussian of sigma PX pixels, at 640x480 and scaled with the "
+                        f"image: keeps amounts, forgives small shifts (default: {blur:g}; 0 with --slack 0: SPEC's "
+                        "exact pixels)")
+    p.set_defaults(slack_default=slack, blur_default=blur)
     p.add_argument("--batched", choices=("yes", "no"), default=batched,
                    help="simulate the hypotheses together (yes) or one after another (no); the same physics, but "
                         "each hypothesis of a batch runs at its own place, so float rounding (and then a chaotic "
                         f"stream) can differ between hypotheses that are otherwise identical (default: {batched})")
 
 
-def likelihood_options(args) -> tuple[float, float]:
-    """(delta, slack_px) from :func:`add_likelihood_options`' options, checked."""
-    from ..inference import DELTA, SLACK_PX
-    from ..inference.likelihood import check_delta, slack_radius
+def likelihood_options(args) -> tuple[float, float, float]:
+    """(delta, slack_px, blur_px) from :func:`add_likelihood_options`' options, checked."""
+    from ..inference import DELTA
+    from ..inference.likelihood import check_comparison, check_delta
     delta = DELTA if args.delta is None else args.delta
-    slack = SLACK_PX if args.slack is None else args.slack
+    if args.slack is None and args.blur is None:
+        slack, blur = args.slack_default, args.blur_default
+    else:
+        slack, blur = args.slack or 0.0, args.blur or 0.0
     try:
         check_delta(delta)
-        slack_radius(1, 1, slack)
+        check_comparison(slack, blur)
     except ValueError as e:
-        raise SystemExit(f"--delta/--slack: {e}") from None
-    return delta, slack
+        raise SystemExit(f"--delta/--slack/--blur: {e}") from None
+    return delta, slack, blur
 
 
 def with_model_options(rec, iterations: int | None):

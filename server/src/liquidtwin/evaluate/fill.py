@@ -4,7 +4,7 @@ Cases: the shared pouring benchmark (:mod:`.benchmark`) with fills empty, 30, 60
 cup and bottle × partial/hold/dump × trials, each with jittered world parameters, sensor
 noise and one mild effect. Each recording is analysed blind by
 :func:`liquidtwin.inference.infer_fill` (the four fill hypotheses simulated together, scored
-with the δ-likelihood of SPEC §3, ``--slack`` px of slack), open loop and warp-field tracked. Quick scenes hold
+with the δ-likelihood of SPEC §3 on masks blurred by ``--blur`` px), open loop and warp-field tracked. Quick scenes hold
 ``generate.catalog.QUICK_FILL`` of the full scenes' liquid, so their hypotheses are scaled
 the same way (configuration, not truth). Scoring reads the case's true fill from the case
 list (``REC.case.json``).
@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..inference.likelihood import FILL_BLUR_PX
 from .benchmark import ensure
 from .cli import (CASES_HELP, add_common, add_likelihood_options, add_model_options, case_range,
                   likelihood_options, save_results, selected_cases, with_model_options)
@@ -42,7 +43,7 @@ def configure(p) -> None:
     p.add_argument("--cases", type=case_range, default=None, metavar="N|A:B", help=CASES_HELP)
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
-    add_likelihood_options(p)
+    add_likelihood_options(p, slack=0.0, blur=FILL_BLUR_PX)
 
 
 def run(args) -> int:
@@ -50,7 +51,7 @@ def run(args) -> int:
     from ..generate.catalog import QUICK_FILL
     from ..inference import fill_name, infer_fill
     from ..recordings import read_recording
-    delta, slack = likelihood_options(args)
+    delta, slack, blur = likelihood_options(args)
     case_list = selected_cases(args, sources=tuple(args.sources), fills=FILLS, kinds=tuple(args.kinds))
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     scale = QUICK_FILL if args.quick else 1.0
@@ -62,7 +63,7 @@ def run(args) -> int:
         row = {"case": case.as_dict(), "recording": str(path), "truth": truth, "modes": {}}
         for mode in args.trackers:
             post = infer_fill(rec, fractions=FILLS, tracking=mode, scale=scale, frames=args.frames, delta=delta,
-                              slack_px=slack, batched=args.batched == "yes")
+                              slack_px=slack, blur_px=blur, batched=args.batched == "yes")
             k = post.names.index(truth)
             row["modes"][mode] = post.as_dict() | {"correct": post.best == truth, "p_truth": float(post.probability[k])}
         results.append(row)
@@ -70,10 +71,10 @@ def run(args) -> int:
     summary = {m: {"mean_p_truth": float(np.mean([r["modes"][m]["p_truth"] for r in results])),
                    "ranked_first": int(sum(r["modes"][m]["correct"] for r in results)), "sequences": len(results)}
                for m in args.trackers}
-    text = format_table(results, args.trackers, names, summary, args.quick, delta, slack, args)
+    text = format_table(results, args.trackers, names, summary, args.quick, delta, slack, blur, args)
     print(text)
     doc = {"kind": "fill", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed, "delta": delta,
-           "slack_px": slack,
+           "slack_px": slack, "blur_px": blur,
            "iterations": args.iterations,
            "scale": scale, "frames": args.frames, "trackers": list(args.trackers), "hypotheses": names,
            "summary": summary, "table_text": text, "cases": results}
@@ -89,7 +90,7 @@ def _save(args, doc: dict) -> Path:
     return save_results(args.out, doc)
 
 
-def format_table(results, modes, names, summary, quick, delta, slack, args) -> str:
+def format_table(results, modes, names, summary, quick, delta, slack, blur, args) -> str:
     lines = []
     for mode in modes:
         lines.append(f"[{mode}]  probability per hypothesis (* = true fill)")
@@ -102,7 +103,7 @@ def format_table(results, modes, names, summary, quick, delta, slack, args) -> s
         lines.append(f"mean probability on the truth {s['mean_p_truth']:.3f}; truth ranked first "
                      f"{s['ranked_first']}/{s['sequences']}")
     lines.append(f"{'quick' if quick else 'full'} benchmark, trials {args.trials}, base seed {args.seed}, "
-                 f"delta = {delta}, slack {slack:g} px at 640x480"
+                 f"delta = {delta}, slack {slack:g} px, blur {blur:g} px at 640x480"
                  + (f", first {args.frames} pose samples" if args.frames else "")
                  + (f", model solver iterations {args.iterations}" if args.iterations else ""))
     return "\n".join(lines)

@@ -27,7 +27,7 @@ from ..session._cull import cull_fallen
 from ..session.engine import MIN_RADIUS_PX, NEAR_M, OCCLUSION_MARGIN_PX
 from ..sim import FluidModel, FluidState, collide_move, particle_radius, step
 from ..tracking import MapFilter, Observation, OpenLoop, WarpField
-from .likelihood import disagreement, near, slack_radius
+from .likelihood import blur_sigma, blurred, check_comparison, disagreement, near, slack_radius
 
 #: Default distance between neighbouring hypotheses along world x, m.
 OFFSET_M = 2.0
@@ -150,18 +150,23 @@ class Bank:
         ids = torch.sort(self.state.ids).values
         return x[self.group_of_id[ids] == k] - self._shifts(x.dtype)[k]
 
-    def observe(self, camera, mask: torch.Tensor, slack_px: float = 0.0) -> np.ndarray:
+    def observe(self, camera, mask: torch.Tensor, slack_px: float = 0.0, blur_px: float = 0.0) -> np.ndarray:
         """Score and (closed loop) correct every hypothesis with one observed ``mask`` (H, W)
-        bool of ``camera``; returns (K,) int64 pixels where each hypothesis's model mask
+        bool of ``camera``; returns (K,) float64 pixels where each hypothesis's model mask
         (visible particles drawn as projected spheres) disagrees with the observation, with a
-        slack of ``slack_px`` at 640×480 (:func:`.likelihood.disagreement`; 0: exact)."""
+        slack of ``slack_px`` or a blur of ``blur_px`` at 640×480
+        (:func:`.likelihood.disagreement`; both 0: exact)."""
         mask = torch.as_tensor(mask, dtype=torch.bool)
-        out = np.zeros(self.K, np.int64)
-        if self.state is None:
-            out[:] = int(mask.sum())
-            return out
+        check_comparison(slack_px, blur_px)
+        out = np.zeros(self.K, np.float64)
         radius = slack_radius(camera.height, camera.width, slack_px)
+        sigma = blur_sigma(camera.height, camera.width, blur_px)
         mask_np = mask.cpu().numpy()
+        mask_blur = blurred(mask_np, sigma)
+        nothing = disagreement(np.zeros_like(mask_np), mask_np, radius, sigma_px=sigma, observed_blurred=mask_blur)
+        if self.state is None:
+            out[:] = nothing
+            return out
         mask_near = near(mask_np, radius)
         s = self.state
         group = self.group_of_id[s.ids]
@@ -179,7 +184,7 @@ class Bank:
         for k in range(self.K):
             idx = (group == k).nonzero().squeeze(1)
             if idx.numel() == 0:
-                out[k] = int(mask.sum())
+                out[k] = nothing
                 continue
             xk, vk = x_all[idx], s.v[idx]
             uv, depth, r_px = uv_all[idx], depth_all[idx], r_all[idx]
@@ -189,7 +194,8 @@ class Bank:
                 occ = [self.models[k].objects[j] for j in self.occluders]
                 seen = visible(camera, xk, occ, occ_poses, margin_px=OCCLUSION_MARGIN_PX, near=NEAR_M)
             cov = sphere_coverage(uv, r_px, seen, camera.height, camera.width)
-            out[k] = disagreement(cov > 0, mask_np, radius, observed_near=mask_near)
+            out[k] = disagreement(cov > 0, mask_np, radius, sigma_px=sigma, observed_near=mask_near,
+                                  observed_blurred=mask_blur)
             if isinstance(self.trackers[k], OpenLoop) or not bool(seen.any()):
                 continue
             typical = float(r_px[seen].median())

@@ -27,7 +27,7 @@ from ..geometry import build
 from ..session._build import build_scene
 from ..session.errors import EngineError
 from .bank import OFFSET_M, Bank, Hypothesis, make_tracker
-from .likelihood import DELTA, SLACK_PX, Posterior, slack_radius
+from .likelihood import DELTA, SLACK_PX, Posterior, check_comparison
 from .run import run_bank
 
 PIPE_MODEL = "pipe_junction"
@@ -84,27 +84,28 @@ def blockage_hypotheses(spec: pb.SceneSpec, obj: str | None = None, names=tuple(
 def infer_blockage(rec, *, obj: str | None = None, hypotheses=tuple(BLOCKAGES), tracking: str = "warp_field",
                    partial: float = PARTIAL, progress: bool = False, camera: str | None = None,
                    frames: int | None = None, delta: float = DELTA, slack_px: float = SLACK_PX,
-                   batched: bool = False, offset_m: float = OFFSET_M) -> Posterior:
+                   blur_px: float = 0.0, batched: bool = False, offset_m: float = OFFSET_M) -> Posterior:
     """Posterior (and probability over time) over the junction's blockage given a recording.
 
     Args:
       rec: a Recording-like object (see :func:`~.fill.infer_fill`); its scene must hold a
         ``pipe_junction`` object (``obj``, default: the first one) and a filled source.
       hypotheses: names from BLOCKAGES (default all five).
-      tracking, camera, frames, delta, slack_px, offset_m: as in :func:`~.fill.infer_fill`.
+      tracking, camera, frames, delta, slack_px, blur_px, offset_m: as in :func:`~.fill.infer_fill`
+        (here the default is the 16 px slack, no blur: the setting the blockage benchmark measured).
       batched: all five in one simulation; default one after another (module doc).
       partial: blocked fraction of a partial plug (default PARTIAL).
     """
     start = time.perf_counter()
-    make_tracker(tracking)                      # a bad mode or slack fails before any simulation
-    slack_radius(1, 1, slack_px)
+    make_tracker(tracking)                      # a bad mode, slack or blur fails before any simulation
+    check_comparison(slack_px, blur_px)
     if rec.spec is None:
         raise ValueError("the recording has no scene spec; cannot build the hypotheses")
     scene, hyps = blockage_hypotheses(rec.spec, obj, tuple(hypotheses), partial=partial, progress=progress)
     bank = Bank(scene.model, hyps, scene.occluders, tracking=tracking, offset_m=offset_m)
     k = _pipe_object(rec.spec, obj)
     post = run_bank(bank, rec, scene.model.dt, camera=camera, frames=frames, delta=delta, slack_px=slack_px,
-                    batched=batched, progress=progress, info={"object": rec.spec.objects[k].name, "partial": partial})
+                    blur_px=blur_px, batched=batched, progress=progress, info={"object": rec.spec.objects[k].name, "partial": partial})
     post.info["analysis_s"] = post.wall_s
     post.wall_s = time.perf_counter() - start
     return post

@@ -20,7 +20,7 @@ from ..scenes.fill import fill_container
 from ..session._build import SETTLE_S, build_scene
 from ..session.errors import EngineError
 from .bank import OFFSET_M, Bank, Hypothesis, make_tracker
-from .likelihood import DELTA, SLACK_PX, Posterior, slack_radius
+from .likelihood import DELTA, FILL_BLUR_PX, Posterior, check_comparison
 from .run import run_bank
 
 FRACTIONS = (0.0, 0.3, 0.6, 0.9)
@@ -102,7 +102,7 @@ def fill_hypotheses(spec: pb.SceneSpec, container: str, fractions, *, scale: flo
 
 def infer_fill(rec, *, container: str | None = None, fractions=FRACTIONS, tracking: str = "warp_field",
                progress: bool = False, scale: float = 1.0, camera: str | None = None, frames: int | None = None,
-               delta: float = DELTA, slack_px: float = SLACK_PX, batched: bool = True,
+               delta: float = DELTA, slack_px: float = 0.0, blur_px: float = FILL_BLUR_PX, batched: bool = True,
                offset_m: float = OFFSET_M) -> Posterior:
     """Posterior over the initial fill of ``container`` given a recording.
 
@@ -119,7 +119,9 @@ def infer_fill(rec, *, container: str | None = None, fractions=FRACTIONS, tracki
       frames: only the first N pose samples (default: all).
       delta: P(pixel label agrees), SPEC §3.
       slack_px: a label agrees when the other mask has it within this many px (at 640×480,
-        scaled with the image; :mod:`.likelihood`); 0: SPEC's exact pixel agreement.
+        scaled with the image; :mod:`.likelihood`). Only with ``blur_px`` 0.
+      blur_px: compare the masks smoothed with a Gaussian of this σ, px at 640×480
+        (:mod:`.likelihood`; default 32). Both 0: SPEC's exact pixel agreement.
       batched: all hypotheses in one simulation (else one after another: the same physics, but
         a batch runs each hypothesis at its own place, so float rounding differs between them).
       offset_m: spacing of the batched hypotheses along world x, m.
@@ -127,14 +129,14 @@ def infer_fill(rec, *, container: str | None = None, fractions=FRACTIONS, tracki
       :class:`Posterior` with names like "empty", "30 %".
     """
     start = time.perf_counter()
-    make_tracker(tracking)                      # a bad mode or slack fails before any simulation
-    slack_radius(1, 1, slack_px)
+    make_tracker(tracking)                      # a bad mode, slack or blur fails before any simulation
+    check_comparison(slack_px, blur_px)
     fr = _check(rec, fractions, scale)
     name = _container(rec.spec, container)
     scene, hyps = fill_hypotheses(rec.spec, name, fr, scale=scale, progress=progress)
     bank = Bank(scene.model, hyps, scene.occluders, tracking=tracking, offset_m=offset_m)
     post = run_bank(bank, rec, scene.model.dt, camera=camera, frames=frames, delta=delta, slack_px=slack_px,
-                    batched=batched, progress=progress, info={"container": name, "fractions": list(fr), "scale": scale})
+                    blur_px=blur_px, batched=batched, progress=progress, info={"container": name, "fractions": list(fr), "scale": scale})
     post.info["analysis_s"] = post.wall_s
     post.wall_s = time.perf_counter() - start
     return post

@@ -43,10 +43,11 @@ def pick_camera(rec, camera: str | None) -> str:
 
 
 def score(bank: Bank, rec, dt: float, *, camera: str, frames: int | None = None, delta: float = DELTA,
-          slack_px: float = SLACK_PX, progress: bool = False,
+          slack_px: float = SLACK_PX, blur_px: float = 0.0, progress: bool = False,
           desc: str = "hypotheses") -> tuple[np.ndarray, np.ndarray]:
     """Run ``bank`` over ``rec``; returns (per-frame log likelihoods (T, K), frame times (T,) s).
-    ``slack_px``: the likelihood's slack at 640×480 (:mod:`.likelihood`; 0: SPEC's exact pixels)."""
+    ``slack_px`` / ``blur_px``: the likelihood's slack or blur at 640×480 (:mod:`.likelihood`;
+    both 0: SPEC's exact pixels)."""
     stamps, masks = rec.masks[camera]
     times = np.asarray(rec.pose_times_ns, np.int64)
     n = len(times) if frames is None else min(int(frames), len(times))
@@ -77,9 +78,9 @@ def score(bank: Bank, rec, dt: float, *, camera: str, frames: int | None = None,
         if j < len(stamps) and stamps[j] == times[i]:
             cam = camera_at(rec, camera, int(times[i]))
             with torch.no_grad():
-                dis = bank.observe(cam, torch.as_tensor(masks[j]), slack_px)
+                dis = bank.observe(cam, torch.as_tensor(masks[j]), slack_px, blur_px)
             pixels = int(masks[j].size)
-            lls.append([frame_log_likelihood(int(d), pixels, delta) for d in dis])
+            lls.append([frame_log_likelihood(float(d), pixels, delta) for d in dis])
             ts.append(t)
         bar.update()
     bar.close()
@@ -87,22 +88,24 @@ def score(bank: Bank, rec, dt: float, *, camera: str, frames: int | None = None,
 
 
 def run_bank(bank: Bank, rec, dt: float, *, camera: str | None = None, frames: int | None = None,
-             delta: float = DELTA, slack_px: float = SLACK_PX, batched: bool = True, progress: bool = False,
-             info: dict | None = None) -> Posterior:
+             delta: float = DELTA, slack_px: float = SLACK_PX, blur_px: float = 0.0, batched: bool = True,
+             progress: bool = False, info: dict | None = None) -> Posterior:
     """Score every hypothesis of ``bank`` on ``rec``: all at once (``batched``) or one after
     another (each alone, the sequential baseline). Returns the :class:`Posterior`."""
     camera = pick_camera(rec, camera)
     start = time.perf_counter()
     names = [h.name for h in bank.hypotheses]
     if batched:
-        ll, ts = score(bank, rec, dt, camera=camera, frames=frames, delta=delta, slack_px=slack_px, progress=progress)
+        ll, ts = score(bank, rec, dt, camera=camera, frames=frames, delta=delta, slack_px=slack_px, blur_px=blur_px,
+                       progress=progress)
     else:
         cols = []
         for k in range(bank.K):
             c, ts = score(bank.single(k), rec, dt, camera=camera, frames=frames, delta=delta, slack_px=slack_px,
-                          progress=progress, desc=names[k])
+                          blur_px=blur_px, progress=progress, desc=names[k])
             cols.append(c)
         ll = np.concatenate(cols, 1)
     extra = {"camera": camera, "tracking": bank.mode, "batched": batched, "delta": delta, "slack_px": float(slack_px),
+             "blur_px": float(blur_px),
              "particles": dict(zip(names, bank.counts))} | dict(info or {})
     return Posterior.from_series(names, ll, ts, time.perf_counter() - start, extra)
