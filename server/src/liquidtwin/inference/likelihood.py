@@ -44,9 +44,10 @@ DELTA = 0.50001
 #: 4 px, 11 at 8 px, 10 at 12 px, all at 320×240); ``liquidtwin evaluate fill`` reports seed 0.
 SLACK_PX = 16.0
 #: Default blur of the fill bank, σ in px at 640×480 (16 px at 320×240). Chosen on those 18
-#: quick pours (hypotheses empty / 30 / 90 %, open loop): truth ranked first 11/18 at σ = 4 px,
-#: 14/18 at 8, 17/18 at 16, 18/18 at 32 (the 16 px slack: 10/18; warp-field tracked at σ 16:
-#: 13/18); reported on ``liquidtwin evaluate fill --quick`` (base seed 0, other pours).
+#: quick pours (hypotheses empty / 30 / 90 %, open loop; ``bench/fill_likelihood.py``): truth
+#: ranked first 14/18 at σ = 8 px, 17/18 at 16, 18/18 at 32 (the 16 px slack: 10/18);
+#: reported on ``liquidtwin evaluate fill --quick`` (base seed 0, other pours, sensor noise
+#: and hidden effects): 14/24, the slack 9/24 on the same recordings.
 FILL_BLUR_PX = 32.0
 
 
