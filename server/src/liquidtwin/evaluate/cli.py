@@ -72,8 +72,8 @@ def add_likelihood_options(p: argparse.ArgumentParser, *, batched: str = "yes", 
                         f"with the image (default: {slack:g}; 0 with --blur 0: SPEC's exact pixels)")
     p.add_argument("--blur", type=float, default=None, metavar="PX",
                    help="compare the masks smoothed by a Gaussian of sigma PX pixels, at 640x480 and scaled with the "
-                        f"image: keeps amounts, forgives small shifts (default: {blur:g}; 0 with --slack 0: SPEC's "
-                        "exact pixels)")
+                        f"image: charges missing liquid in full, forgives drops drawn a few px off (default: {blur:g}; "
+                        "0 with --slack 0: SPEC's exact pixels)")
     p.set_defaults(slack_default=slack, blur_default=blur)
     p.add_argument("--batched", choices=("yes", "no"), default=batched,
                    help="simulate the hypotheses together (yes) or one after another (no); the same physics, but "
