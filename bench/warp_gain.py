@@ -50,45 +50,51 @@ class _Counting(WarpField):
         return c
 
 
-def sweep(data: Path, settings: list[tuple[float, float]], *, frames: int | None = None, progress=print) -> list[dict]:
-    """One run per (gain, cap): pooled IOU, share of moves at the cap, per-pour means."""
+def sweep(data: Path, settings: list[tuple], *, frames: int | None = None, progress=print) -> list[dict]:
+    """One run per (gain, cap[, agreeing share]): pooled IOU, share of moves at the cap, per-pour means."""
     paths = sorted(data.glob("*.mcap"))
     if not paths:
         raise SystemExit(f"no .mcap recordings in {data}")
     runs = []
-    for gain, cap in settings:
+    for setting in settings:
+        gain, cap, agreeing = (*setting, 1.0)[:3]
         t0, cases, pooled, at_cap, seen = time.perf_counter(), [], [], 0, 0
         for path in paths:
             rec = read_recording(path)
             eng = engine_for(rec, "warp_field")
-            eng._tracker = tracker = _Counting(gain, max_move=cap)     # the session's tracker, swapped
+            eng._tracker = tracker = _Counting(gain, max_move=cap, agreeing_share=agreeing)    # swapped in
             r = replay(rec, eng, frames=frames)
             s = {"iou": r.iou, "observed_px": r.observed_px}
             pooled += [i for i, n in zip(r.iou, r.observed_px) if n >= MIN_PX]
             cases.append({"recording": path.name, "mean_iou": {"warp_field": series_mean(s, MIN_PX)}})
             at_cap, seen = at_cap + tracker.at_cap, seen + tracker.seen
-        run = {"gain": gain, "max_move": cap, "pooled_iou": float(np.mean(pooled)), "at_cap": at_cap / max(seen, 1),
+        run = {"gain": gain, "max_move": cap, "agreeing_share": agreeing, "pooled_iou": float(np.mean(pooled)), "at_cap": at_cap / max(seen, 1),
                "wall_s": time.perf_counter() - t0, "cases": cases}
-        progress(f"gain {gain:g}, cap {cap:g} h: pooled IOU {run['pooled_iou']:.4f}, "
+        progress(f"{_name(run)}: pooled IOU {run['pooled_iou']:.4f}, "
                  f"{100 * run['at_cap']:.0f} % of moves at the cap ({run['wall_s']:.0f} s)")
         runs.append(run)
     return runs
 
 
+def _name(run: dict) -> str:
+    share = run.get("agreeing_share", 1.0)
+    return f"gain {run['gain']:g}, cap {run['max_move']:g} h" + ("" if share == 1.0 else f", agreeing x{share:g}")
+
+
 def _print_paired(runs: list[dict]) -> None:
     base = runs[0]
-    print(f"\npour by pour against gain {base['gain']:g}, cap {base['max_move']:g} h ({len(base['cases'])} pours; "
+    print(f"\npour by pour against {_name(base)} ({len(base['cases'])} pours; "
           "pours with no frame >= 50 px left out):")
     for run in runs[1:]:
         d = paired({"cases": base["cases"]}, {"cases": run["cases"]}, min_px=MIN_PX)
         w = next(x for x in d if x["column"] == "warp_field")
-        print(f"  gain {run['gain']:g}, cap {run['max_move']:g} h: {w['mean_diff']:+.3f} "
+        print(f"  {_name(run)}: {w['mean_diff']:+.3f} "
               f"({w['low']:+.3f} to {w['high']:+.3f}), better on {w['b_better']}/{w['pours']}")
 
 
 def _combine(paths: list[Path]) -> int:
     docs = [json.loads(p.read_text())["runs"] for p in paths]
-    settings = [[(r["gain"], r["max_move"]) for r in d] for d in docs]
+    settings = [[(r["gain"], r["max_move"], r.get("agreeing_share", 1.0)) for r in d] for d in docs]
     if any(s != settings[0] for s in settings):
         raise SystemExit(f"the sweeps do not share their settings in order: {settings}")
     runs = [{**doc_runs[0], "cases": [{**c, "recording": f"{i}/{c['recording']}"}
@@ -107,6 +113,8 @@ def main(argv=None) -> int:
                         "order, e.g. one per base seed) and print each setting's paired difference from the first")
     p.add_argument("--gains", default="600,50", help="comma-separated gains (px at 640x480 per unit field)")
     p.add_argument("--max-move", default="0.5", help="comma-separated caps, kernel radii h (one for all, or one per gain)")
+    p.add_argument("--agreeing", default="1", help="comma-separated shares of the pull given to particles already "
+                   "drawn on observed liquid (WarpField(agreeing_share=...); one for all, or one per gain; default 1)")
     p.add_argument("--frames", type=int, default=None, help="only the first N pose samples of each recording")
     p.add_argument("--out", type=Path, default=None, help="write every run's per-pour means as JSON")
     args = p.parse_args(argv)
@@ -118,7 +126,11 @@ def main(argv=None) -> int:
     caps = [float(c) for c in args.max_move.split(",")]
     if len(caps) not in (1, len(gains)):
         raise SystemExit(f"--max-move takes one cap or one per gain ({len(gains)}), got {len(caps)}")
-    runs = sweep(args.data, list(zip(gains, caps * len(gains) if len(caps) == 1 else caps)), frames=args.frames)
+    shares = [float(a) for a in args.agreeing.split(",")]
+    if len(shares) not in (1, len(gains)) or not all(0.0 <= a <= 1.0 for a in shares):
+        raise SystemExit(f"--agreeing takes shares in [0, 1], once or once per gain ({len(gains)}), got {args.agreeing!r}")
+    caps, shares = (v * len(gains) if len(v) == 1 else v for v in (caps, shares))
+    runs = sweep(args.data, list(zip(gains, caps, shares)), frames=args.frames)
     _print_paired(runs)
     if args.out:
         args.out.write_text(json.dumps({"data": str(args.data), "runs": runs}, indent=1) + "\n")

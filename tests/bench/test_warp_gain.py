@@ -49,3 +49,13 @@ def test_cli_prints_the_paired_difference_and_writes_json(data, tmp_path):
     bad = subprocess.run([sys.executable, str(ROOT / "bench" / "warp_gain.py"), "--data", str(data), "--gains", "1,2,3",
                           "--max-move", "0.1,0.2"], capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "one cap or one per gain" in bad.stderr
+    bad = subprocess.run([sys.executable, str(ROOT / "bench" / "warp_gain.py"), "--data", str(data), "--gains", "600",
+                          "--agreeing", "1.5"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "--agreeing takes shares in [0, 1]" in bad.stderr
+
+
+def test_agreeing_share_is_a_setting_of_the_sweep(data):
+    runs = sweep(data, [(600.0, 0.25), (600.0, 0.25, 0.0)], frames=90, progress=lambda s: None)
+    assert [r["agreeing_share"] for r in runs] == [1.0, 0.0]
+    a, b = runs[0]["pooled_iou"], runs[1]["pooled_iou"]
+    assert 0 < a < 1 and 0 < b < 1 and a != b                       # agreeing particles held still change the run

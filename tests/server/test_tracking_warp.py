@@ -132,6 +132,25 @@ def test_the_saturated_default_gain_closes_an_offset_that_a_proportional_gain_le
     assert final[50.0][0] < 0.7 and final[50.0][1] > 0.005, final
 
 
+def test_particles_already_on_observed_liquid_get_their_share_of_the_pull():
+    cam, ball, model = _cloud_scene()
+    mask = model_mask(cam.project(ball + torch.tensor([0.03, 0.0, 0.0]))[0], None, cam.height, cam.width, 5.0)
+    obs, _ = _observe(cam, ball, mask, model)
+    u, v = obs.uv.round().long().unbind(1)
+    on = obs.visible & mask[v.clamp(0, cam.height - 1), u.clamp(0, cam.width - 1)]
+    off = obs.visible & ~on
+    assert int(on.sum()) > 10 and int(off.sum()) > 10                 # the cloud half overlaps the liquid
+    full = WarpField().correct(obs).dx
+    for share in (0.0, 0.3):
+        c = WarpField(agreeing_share=share).correct(obs)
+        torch.testing.assert_close(c.dx[on], share * full[on])
+        torch.testing.assert_close(c.dx[off], full[off])
+        torch.testing.assert_close(c.dv, c.dx * (0.2 * 30.0))        # the velocity follows the kept move
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="agreeing_share"):
+            WarpField(agreeing_share=bad)
+
+
 def test_nothing_moves_without_liquid_or_with_open_loop():
     cam, ball, model = _cloud_scene()
     obs, _ = _observe(cam, ball, torch.zeros(cam.height, cam.width, dtype=torch.bool), model)
