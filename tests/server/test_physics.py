@@ -164,7 +164,7 @@ def test_deep_liquid_stays_at_rest_with_the_generators_solver_iterations():
     spreads its correction a few rest spacings per iteration, so deep liquid needs enough
     iterations; with too few the column bounces and boils over, or collapses (SPEC's K = 3 was
     for shallower liquid at h = 0.1). The generator's rule (``generate.world.model_iterations``) gives this
-    cup 6; at 4 it boils."""
+    cup 6; at 4 it does not hold."""
     from liquidtwin.generate.world import MODEL_ITERATIONS
     from liquidtwin.geometry import build
     cup = build("cup", radius=0.02, bottom_radius=0.016, height=0.11)

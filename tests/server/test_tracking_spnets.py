@@ -26,7 +26,8 @@ POUR_SCENE, POUR_CHOICES = "pour_partial", {"source": "cup", "fraction": 0.3}
 POUR_SEEDS = (1, 2, 3)
 #: Mean IOU gain over the pours asserted per closed-loop tracker. One pour's gain is the
 #: spread of a chaotic rollout: on quick hold pours seed 1 measured open loop 0.292,
-#: spnets_perception 0.392 on an AVX2 CPU and 0.353 / 0.368 on an AVX-512 one (same code),
+#: spnets_perception 0.392 when the test was written (an AVX2 CPU) and 0.353 / 0.368 on an
+#: AVX-512 one at stop 39,
 #: and on quick dump pours (seeds 1–3, AVX-512) spnets_perception gained −0.004, +0.084,
 #: +0.030. On these partial pours (AVX-512): spnets_perception +0.207, +0.125, +0.234;
 #: warp field +0.199, −0.011, +0.159.

@@ -159,8 +159,8 @@ def test_the_servers_tracking_is_the_engines_replay_frame_for_frame(runs):
     quality measured offline (``tests/server/test_tracking_spnets.py``: closed loop above
     open loop over several generated pours) is the served quality. A single pour's closed-
     vs-open gap is not asserted here: it is the spread of a chaotic rollout (dump, over masks
-    showing liquid: warp 0.271 vs open 0.245 on an AVX2 CPU, 0.279 vs 0.270 on an AVX-512
-    one, the same code)."""
+    showing liquid: warp 0.271 vs open 0.245 when the old check was written, on an AVX2 CPU;
+    0.279 vs 0.270 on an AVX-512 one at stop 39)."""
     from liquidtwin.evaluate.replay import engine_for, replay
     from liquidtwin.recordings import read_recording
     for name, path in RECORDINGS.items():
