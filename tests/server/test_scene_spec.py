@@ -7,7 +7,7 @@ import pytest
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from liquidtwin.geometry import build
-from liquidtwin.scenes.spec import SpecError, load_spec, save_spec, scene_objects, simulation_settings
+from liquidtwin.scenes.spec import SpecError, load_spec, save_spec, scene_objects, simulation_settings, solve_with
 
 
 def _spec(**fill) -> pb.SceneSpec:
@@ -25,6 +25,22 @@ def test_json_round_trip_and_defaults(tmp_path):
     assert '"volumeMl": 150.0' in (tmp_path / "s.json").read_text()
     sim = simulation_settings(spec)
     assert sim["h"] == 0.011 and sim["iterations"] == 4 and sim["spacing"] == pytest.approx(0.55 * 0.011)
+    assert sim["cohesion_iterations"] is None                  # SPNets' cohesion, in full every iteration
+
+
+def test_solving_with_more_iterations_keeps_the_liquid(tmp_path):
+    """solve_with: the count changes, the cohesion stays what the stated count applied — and
+    the session's model is built so (the pour it changes: tests/bench/test_pour_iterations.py)."""
+    from liquidtwin.session._build import build_scene
+    spec = _spec(volume_ml=20.0)
+    assert solve_with(spec, 9) is spec
+    sim = simulation_settings(spec)
+    assert (sim["iterations"], sim["cohesion_iterations"]) == (9, 4)
+    solve_with(spec, 2)                                        # again: still the liquid first stated
+    assert (spec.simulation.iterations, spec.simulation.cohesion_iterations) == (2, 4)
+    model = build_scene(pb.SessionSpec(scene=spec)).model
+    assert (model.iterations, model.cohesion_iterations) == (2, 4)
+    assert build_scene(pb.SessionSpec(scene=_spec(volume_ml=20.0))).model.cohesion_iterations is None
 
 
 def test_catalogue_and_user_mesh_objects(tmp_path):
