@@ -28,6 +28,7 @@ from tqdm.auto import tqdm
 
 from liquidtwin.control.tilt import turn_pose
 from liquidtwin.generate.robot import RobotWorld
+from liquidtwin.scenes.spec import solve_with
 from liquidtwin_client import Client
 
 #: Stamps start here (2026-01-01T00:00:00Z), like the generator's recordings.
@@ -64,6 +65,9 @@ def main(argv=None) -> dict:
     p.add_argument("--ml", type=float, default=8.0, help="ml to pour (default: %(default)s)")
     p.add_argument("--controller", default="mpc", choices=("pid", "mpc"), help="(default: %(default)s)")
     p.add_argument("--tracking", default="warp_field", help="session tracker (default: %(default)s)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="PBF solver iterations the robot asks of the session's model, for the same liquid "
+                        "(cohesion as the scene's count applies it; default: the scene's count)")
     p.add_argument("--fps", type=float, default=30.0, help="frames per s (default: %(default)s)")
     p.add_argument("--max-angle", type=float, default=2.0, help="tilt limit, rad (default: %(default)s)")
     p.add_argument("--max-rate", type=float, default=1.5, help="rate limit, rad/s (default: %(default)s)")
@@ -82,7 +86,7 @@ def main(argv=None) -> dict:
     done_at, top, frames = None, 0.0, 0
     t0 = time.perf_counter()
     with Client(connect=a.connect) as client:
-        session, cams = open_session(client, world, a.tracking)
+        session, cams = open_session(client, world, a.tracking, a.iterations)
         session.set_pour_task("source", "target", a.ml, a.max_angle, a.max_rate, controller=a.controller)
         bar = tqdm(range(int(a.seconds * a.fps)), desc=f"{a.controller} {a.ml:g} ml", unit="frame")
         for i in bar:
@@ -105,15 +109,22 @@ def main(argv=None) -> dict:
               "spilled_ml": before["source"] + before["target"] - after["source"] - after["target"],
               "switched_s": done_at, "upright": bool(world.tilt("source") < 1e-6),
               "max_tilt_deg": math.degrees(top), "frames": frames, "wall_s": time.perf_counter() - t0,
-              "scene": world.setup.name, "seed": a.seed, "effects": [e.as_dict() for e in world.effects]}
+              "scene": world.setup.name, "seed": a.seed, "effects": [e.as_dict() for e in world.effects],
+              "model_iterations": a.iterations or world.spec().simulation.iterations}
     print(f"asked {a.ml:g} ml, poured {result['poured_ml']:.2f} ml (the server thought "
           f"{c.achieved_ml:.2f}), spilled {result['spilled_ml']:.2f} ml, {frames} frames")
     return save(result, a.out)
 
 
-def open_session(client, world, tracking: str):
-    """A session of the world's stated scene, its cameras' calibrations sent."""
-    session = client.create_session(world.spec(), tracking=tracking)
+def open_session(client, world, tracking: str, iterations: int | None = None):
+    """A session of the world's stated scene (its model solving ``iterations`` PBF iterations
+    a step if given), its cameras' calibrations sent."""
+    spec = world.spec()
+    if iterations is not None:
+        if iterations < 1:
+            raise SystemExit(f"--iterations must be at least 1, got {iterations}")
+        solve_with(spec, iterations)
+    session = client.create_session(spec, tracking=tracking)
     cams = world.cameras()
     for name, c in cams.items():
         session.publish_camera(name, c.K, c.D, c.width, c.height, START_NS)
@@ -145,7 +156,7 @@ def catch(a) -> dict:
     dt = frame_ns * 1e-9
     x0, frames, t0 = float(world.poses[dst][0]), 0, time.perf_counter()
     with Client(connect=a.connect) as client:
-        session, cams = open_session(client, world, a.tracking)
+        session, cams = open_session(client, world, a.tracking, a.iterations)
         session.set_catch_task("source", "catcher")
         bar = tqdm(range(int(round(world.setup.duration * a.fps))), desc="catch", unit="frame")
         for i in bar:

@@ -30,8 +30,10 @@ POUR_SEEDS = (1, 2, 3)
 #: AVX-512 one at stop 39,
 #: and on quick dump pours (seeds 1–3, AVX-512) spnets_perception gained −0.004, +0.084,
 #: +0.030. On these partial pours (AVX-512): spnets_perception +0.207, +0.125, +0.234;
-#: warp field +0.199, −0.011, +0.159.
-POUR_MARGIN = {"spnets_perception": 0.05, "warp_field": 0.03}
+#: warp field +0.199, −0.011, +0.159. Since stop 41's world (its cohesion no longer raised by
+#: its extra solver iterations: generate/world.py): spnets_perception +0.201, +0.033, +0.262;
+#: warp field +0.183, +0.054, +0.116; MAP filter +0.061, +0.012, +0.077.
+POUR_MARGIN = {"spnets_perception": 0.05, "warp_field": 0.03, "map_filter": 0.02}
 CAMERA = "thermal"
 
 
@@ -238,7 +240,7 @@ def pours(tmp_path_factory):
 
 
 def test_closed_loop_sessions_track_generated_pours_better_than_open_loop(pours):
-    """Both closed-loop trackers beat open loop on average over the pours by their margin, and
+    """Every closed-loop tracker beats open loop on average over the pours by its margin, and
     SPNets+perception (the best tracker of the benchmark) on every pour."""
     from liquidtwin.evaluate.replay import engine_for, replay
     gains = {m: [] for m in POUR_MARGIN}

@@ -14,16 +14,14 @@ from pathlib import Path
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "04_robot_world.py"
 ASK_ML = 8.0
-#: What is asserted of the pour, and what is not. The quick cup (323 particles, 0.07 ml
-#: each) lets its liquid go in slugs of up to ~3 ml a frame at 30 fps, and the twin misjudges
-#: what the world pours and where it lands. The issue's target — the amount that truly lands
-#: within the ask's tolerance — is **missed** on seeds 2 and 3: 8 ml asked with the hidden
-#: drag, seeds 1–4 truly landed 5.09, 2.00, 4.15, 5.83 ml (the twin believed 10.1, 5.9, 6.9,
-#: 10.6 ml) on an AVX-512 CPU at stop 40; seed 3 landed 6.39 ml at commit 7b6ba93 on an
-#: earlier machine (the twin believed 8.4).
-#: Asserted is what held on both: the MPC tilts until liquid flows, stops, sets the cup
-#: upright and pours a part of the cup, not all of it as the PD baseline does (22.2 ml).
-MIN_POURED_ML = 1.0
+#: The issue's target: what truly lands in the pan is within the ask's tolerance. The quick
+#: cup (323 particles, 0.07 ml each) lets its liquid go in slugs of up to ~3 ml a frame at
+#: 30 fps, so the tolerance is ±3 ml. Measured at stop 41 (8 ml asked, hidden drag, seeds
+#: 1–4): 8.54, 5.32, 7.13, 8.37 ml truly landed (the twin believed 10.9, 6.2, 7.2, 11.1). Before
+#: stop 41 the world's liquid was half again as cohesive as its λ_c said (two more solver
+#: iterations, each applying λ_c: generate/world.py) and seeds 1–4 landed 5.09, 2.00, 4.15,
+#: 5.83 ml; this test then asserted only that more than 1 ml landed.
+TOLERANCE_ML = 3.0
 
 
 def test_robot_world_pours_through_the_server_closed_loop(servers, tmp_path):
@@ -38,7 +36,7 @@ def test_robot_world_pours_through_the_server_closed_loop(servers, tmp_path):
     print(r)
     assert r["effects"][0]["name"] == "drag" and r["switched_s"] is not None and r["upright"]
     assert r["max_tilt_deg"] > 60                      # it tilted until the liquid flowed
-    assert r["poured_ml"] > MIN_POURED_ML, r            # liquid truly landed in the pan
+    assert abs(r["poured_ml"] - ASK_ML) <= TOLERANCE_ML, r    # the ask truly landed in the pan
     assert r["poured_ml"] + r["spilled_ml"] < 0.5 * r["source_before_ml"], r    # not the whole cup, as PD does
     assert r["server_achieved_ml"] >= 0.5 * ASK_ML, r   # it stopped on its twin's count, not early
 

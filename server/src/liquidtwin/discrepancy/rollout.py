@@ -18,7 +18,7 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 from ..camera import sphere_coverage, sphere_radius_px, visible
 from ..generate.catalog import source_sites
 from ..scenes.fill import fill_container
-from ..scenes.spec import simulation_settings
+from ..scenes.spec import simulation_settings, solve_with
 from ..session._build import SETTLE_S, build_scene
 from ..session._cull import cull_fallen
 from ..session.engine import MIN_RADIUS_PX, NEAR_M, OCCLUSION_MARGIN_PX
@@ -44,7 +44,7 @@ class Trajectory:
 class Simulator:
     """The episode's scene, built once; rollouts of any extension of its model.
     ``extra_iterations``: solver iterations added to the recording's stated count (the fill
-    is settled with them too)."""
+    is settled with them too), with the stated count's cohesion (``FluidModel.cohesion_iterations``)."""
 
     def __init__(self, ep: Episode, *, progress: bool = False, extra_iterations: int = 0):
         self.ep = ep
@@ -52,7 +52,7 @@ class Simulator:
         if extra_iterations:
             spec = pb.SessionSpec()
             spec.CopyFrom(ep.spec)
-            spec.scene.simulation.iterations = int(simulation_settings(ep.spec.scene)["iterations"]) + extra_iterations
+            solve_with(spec.scene, int(simulation_settings(ep.spec.scene)["iterations"]) + extra_iterations)
         self.scene = build_scene(spec, progress=progress)
         self.model = self.scene.model
         self.dt = float(self.model.dt)

@@ -99,12 +99,14 @@ def likelihood_options(args) -> tuple[float, float, float]:
 
 
 def with_model_options(rec, iterations: int | None):
-    """``rec`` with its scene spec's solver iterations set to ``iterations`` (None: unchanged)."""
+    """``rec`` with its scene spec solving ``iterations`` solver iterations of the same liquid
+    (``scenes.spec.solve_with``; None: unchanged)."""
     if iterations is not None:
         if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
             raise SystemExit(f"--iterations must be a whole number >= 1, got {iterations!r}")
         if rec.spec is not None:
-            rec.spec.simulation.iterations = int(iterations)
+            from ..scenes.spec import solve_with
+            solve_with(rec.spec, int(iterations))
     return rec
 
 
