@@ -55,7 +55,8 @@ def run_world(seed: int, a, tilts) -> dict:
     world = RobotWorld("pour_dump", seed=seed, quick=True, effects=a.effect, noise=False,
                        choices={"source": "cup", "target": "pan"})
     k, before = world.setup.index("source"), world.held_ml()
-    axis = pour_axis(world.setup.objects[k].model.mesh.vertices, world.poses[k], world.poses[world.setup.index("target")][:3])
+    target = world.poses[world.setup.index("target")][:3]
+    axis = pour_axis(world.setup.objects[k].model.mesh.vertices, world.poses[k], target)
     pose0, left, landed = world.poses[k].copy(), [], []
     for angle in tilts:
         pose = turn_pose(pose0, axis.pivot_world(pose0), axis.axis, angle)
@@ -123,7 +124,8 @@ def main(argv=None) -> dict:
     print(f"{'seed':>4} {'who':>5} {'iter':>4} {'λ_c':>6} {'coh. it':>7} {'left cup':>9} {'landed':>7}")
     for r in rows:
         lc = f"{r['lambda_c']:6.3f} {r['cohesion_iterations'] or '-':>7}" if r["who"] == "twin" else f"{'':>14}"
-        print(f"{r['seed']:>4} {r['who']:>5} {r['iterations']:>4} {lc} {r['left_ml'][-1]:9.2f} {r['landed_ml'][-1]:7.2f}")
+        print(f"{r['seed']:>4} {r['who']:>5} {r['iterations']:>4} {lc} "
+              f"{r['left_ml'][-1]:9.2f} {r['landed_ml'][-1]:7.2f}")
     out = {"argv": sys.argv[1:], "tilts_rad": tilts, "rows": rows}
     if a.json:
         Path(a.json).write_text(json.dumps(out, indent=1))

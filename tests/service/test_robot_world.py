@@ -44,7 +44,7 @@ def test_robot_world_pours_through_the_server_closed_loop(servers, tmp_path):
 def test_robot_world_catches_the_stream_through_the_server_closed_loop(servers, tmp_path):
     """--task catch: the world's source pours on its script (unknown to the server), the
     catcher starts 12-18 cm from where the scene's stream lands and moves at each Control's
-    velocity. Measured (seed 1, no hidden effect): 99.2 % truly caught, the catcher moving
+    velocity. Measured on the worlds before stop 41 (seed 1, no hidden effect): 99.2 % truly caught, the catcher moving
     from 6.7 to −13.7 cm. With a hidden
     drag of 2.43 /m the same run caught 84.1 % while the twin counted 98.5 %, and a hidden
     wind across the catcher's rail (seed 2) 2.8 %: the twin's stream lands where the

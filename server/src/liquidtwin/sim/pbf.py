@@ -185,8 +185,8 @@ class FluidModel:
         """
         if not h > 0 or not dt > 0 or iterations < 1:
             raise ValueError(f"need h > 0, dt > 0, iterations >= 1 (got {h}, {dt}, {iterations})")
-        if cohesion_iterations is not None and (isinstance(cohesion_iterations, bool) or
-                                                int(cohesion_iterations) != cohesion_iterations or cohesion_iterations < 1):
+        if cohesion_iterations is not None and (isinstance(cohesion_iterations, bool) or cohesion_iterations < 1
+                                                or int(cohesion_iterations) != cohesion_iterations):
             raise ValueError(f"cohesion_iterations must be None or a whole number >= 1, got {cohesion_iterations!r}")
         if backend not in ("auto", "torch", "fused"):
             raise ValueError(f"backend must be auto, torch or fused, got {backend!r}")
