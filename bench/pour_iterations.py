@@ -16,7 +16,7 @@ Why: the pour MPC decides when to turn back from its own model's drain predictio
 camera has seen where the stream lands, so a model that pours more than the world turns back
 early. SPNets applies cohesion once per solver iteration, so the iteration count is part of
 the liquid: ``--cohesion default`` shows the pour stop as iterations grow, ``zero`` (no
-cohesion) converges, and ``per-step`` (``simulation.cohesion_iterations``: every count
+cohesion) converges, and ``per-step`` (``simulation.reference_iterations``: every count
 applies the cohesion of ``--reference`` iterations) keeps the liquid while the solve
 improves. Until stop 41 the generator's world ran its extra iterations with SPNets' cohesion,
 a stickier liquid than its λ_c said (results ``bench/results/pour_iterations_*``).
@@ -72,7 +72,7 @@ def run_twin(spec, iterations: int, a, tilts) -> dict:
     spec = type(spec).FromString(spec.SerializeToString())
     spec.simulation.iterations = iterations
     if a.cohesion == "per-step":
-        spec.simulation.cohesion_iterations = a.reference
+        spec.simulation.reference_iterations = a.reference
     fluid = pb.FluidParameters(lambda_c=0.0) if a.cohesion == "zero" else pb.FluidParameters()
     eng = SessionEngine.create(pb.SessionSpec(scene=spec, tracking=pb.OPEN_LOOP, fluid=fluid))
     eng.advance(0.0, {})
@@ -86,7 +86,7 @@ def run_twin(spec, iterations: int, a, tilts) -> dict:
         left.append(before["source"] - now["source"])
         landed.append(now["target"] - before["target"])
     return {"who": "twin", "iterations": iterations, "lambda_c": float(eng._model.params.lambda_c),
-            "cohesion_iterations": eng._model.cohesion_iterations,
+            "reference_iterations": eng._model.reference_iterations,
             "left_ml": left, "landed_ml": landed, "particles": eng.n_particles}
 
 
@@ -103,9 +103,9 @@ def main(argv=None) -> dict:
     p.add_argument("--fps", type=float, default=30.0, help="frames per s (default: %(default)s)")
     p.add_argument("--cohesion", default="default", choices=("default", "per-step", "zero"),
                    help="twins' cohesion: default (SPNets: λ_c in full every iteration); per-step "
-                        "(simulation.cohesion_iterations = --reference: every count applies what "
+                        "(simulation.reference_iterations = --reference: every count applies what "
                         "--reference iterations do); zero (λ_c = 0) (default: %(default)s)")
-    p.add_argument("--reference", type=int, default=4, help="cohesion_iterations of per-step (default: %(default)s)")
+    p.add_argument("--reference", type=int, default=4, help="reference_iterations of per-step (default: %(default)s)")
     p.add_argument("--json", help="write every series here")
     a = p.parse_args(argv)
     if min(a.iterations) < 1 or a.rate <= 0 or a.fps <= 0 or a.seconds <= a.back:
@@ -123,7 +123,7 @@ def main(argv=None) -> dict:
           f"ml at {a.seconds:g} s ({time.perf_counter() - t0:.0f} s)")
     print(f"{'seed':>4} {'who':>5} {'iter':>4} {'λ_c':>6} {'coh. it':>7} {'left cup':>9} {'landed':>7}")
     for r in rows:
-        lc = f"{r['lambda_c']:6.3f} {r['cohesion_iterations'] or '-':>7}" if r["who"] == "twin" else f"{'':>14}"
+        lc = f"{r['lambda_c']:6.3f} {r['reference_iterations'] or '-':>7}" if r["who"] == "twin" else f"{'':>14}"
         print(f"{r['seed']:>4} {r['who']:>5} {r['iterations']:>4} {lc} "
               f"{r['left_ml'][-1]:9.2f} {r['landed_ml'][-1]:7.2f}")
     out = {"argv": sys.argv[1:], "tilts_rad": tilts, "rows": rows}

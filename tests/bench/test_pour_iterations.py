@@ -1,5 +1,5 @@
 """bench/pour_iterations.py on seed 1's robot world: SPNets' cohesion, applied in full every
-solver iteration, makes the iteration count part of the liquid; ``cohesion_iterations``
+solver iteration, makes the iteration count part of the liquid; ``reference_iterations``
 (SimulationSettings) keeps the liquid while the count changes.
 
 Measured (the bench, 3 s): 19.5 ml left the cup at 4 iterations, 2.35 ml at 12 with SPNets'

@@ -112,7 +112,7 @@ class Params:
     lambda_v: float
     rho0: float
     max_pieces: int = 256
-    cohesion_iterations: int | None = None   # cohesion and tension × this / iterations per iteration
+    reference_iterations: int | None = None   # cohesion and tension × this / iterations per iteration
 
 
 # ------------------------------------------------------------------ rotations and poses
@@ -261,7 +261,7 @@ def constraint_delta(prm: Params, x: np.ndarray) -> np.ndarray:
     pressure = (unit * ((omega[:, None] + omega[None, :]) * w_omega(d, mask, h))[..., None]).sum(1)
     tension = (mask[..., None] * (nrm[None, :, :] - nrm[:, None, :])).sum(1)
     scale = np.maximum(count / (1.0 + prm.relaxation), prm.damp)
-    share = 1.0 if prm.cohesion_iterations is None else prm.cohesion_iterations / prm.iterations
+    share = 1.0 if prm.reference_iterations is None else prm.reference_iterations / prm.iterations
     tens = share * prm.lambda_s * h / (prm.rho0 * h**3)
     return (pressure + share * prm.lambda_c * h * nrm + tens * tension) / scale[:, None]
 

@@ -79,7 +79,7 @@ def _params(model):
                       iterations=model.iterations, kappa=model.kappa,
                       collision_distance=model.collision_distance, relaxation=model.relaxation,
                       damp=model.damp, max_pieces=model.max_pieces,
-                      cohesion_iterations=model.cohesion_iterations, **p)
+                      reference_iterations=model.reference_iterations, **p)
 
 
 def _grid(o):
@@ -173,23 +173,23 @@ def test_float32_fused_matches_numpy(setup):
 
 @pytest.mark.parametrize("backend", ["torch", "fused"])
 def test_cohesion_per_step_matches_numpy(backend):
-    """``cohesion_iterations``: 5 iterations whose cohesion and tension add up to 2
+    """``reference_iterations``: 5 iterations whose cohesion and tension add up to 2
     iterations' match the reference; and they do change the step (a K-iteration SPNets step
     applies λ_c K times)."""
     if backend == "fused" and not liquidtwin.sim.fused.available():
         pytest.skip("no C++ extension")
     grid, x, v, poses = scene()
     per_step = liquidtwin.FluidModel.create(H, objects=[grid], params=PARAMS, backend=backend, iterations=5,
-                                            cohesion_iterations=2)
+                                            reference_iterations=2)
     reference, _ = run_numpy(per_step, x, v, poses)
     dx, dv = max_diff(run_torch(per_step, x, v, poses, torch.float64), reference)
     assert dx < 1e-10 and dv < 1e-8, (dx, dv)
-    plain = run_torch(per_step.replace(cohesion_iterations=None), x, v, poses, torch.float64)
+    plain = run_torch(per_step.replace(reference_iterations=None), x, v, poses, torch.float64)
     assert max_diff(plain, reference)[0] > 1e-4
-    same = run_torch(per_step.replace(cohesion_iterations=5), x, v, poses, torch.float64)
+    same = run_torch(per_step.replace(reference_iterations=5), x, v, poses, torch.float64)
     assert max_diff(same, plain) == (0.0, 0.0)
-    with pytest.raises(ValueError, match="cohesion_iterations"):
-        liquidtwin.FluidModel.create(H, cohesion_iterations=0)
+    with pytest.raises(ValueError, match="reference_iterations"):
+        liquidtwin.FluidModel.create(H, reference_iterations=0)
 
 
 if __name__ == "__main__":  # measured differences and timings

@@ -25,7 +25,7 @@ def test_json_round_trip_and_defaults(tmp_path):
     assert '"volumeMl": 150.0' in (tmp_path / "s.json").read_text()
     sim = simulation_settings(spec)
     assert sim["h"] == 0.011 and sim["iterations"] == 4 and sim["spacing"] == pytest.approx(0.55 * 0.011)
-    assert sim["cohesion_iterations"] is None                  # SPNets' cohesion, in full every iteration
+    assert sim["reference_iterations"] is None                  # SPNets' cohesion, in full every iteration
 
 
 def test_solving_with_more_iterations_keeps_the_liquid(tmp_path):
@@ -35,12 +35,12 @@ def test_solving_with_more_iterations_keeps_the_liquid(tmp_path):
     spec = _spec(volume_ml=20.0)
     assert solve_with(spec, 9) is spec
     sim = simulation_settings(spec)
-    assert (sim["iterations"], sim["cohesion_iterations"]) == (9, 4)
+    assert (sim["iterations"], sim["reference_iterations"]) == (9, 4)
     solve_with(spec, 2)                                        # again: still the liquid first stated
-    assert (spec.simulation.iterations, spec.simulation.cohesion_iterations) == (2, 4)
+    assert (spec.simulation.iterations, spec.simulation.reference_iterations) == (2, 4)
     model = build_scene(pb.SessionSpec(scene=spec)).model
-    assert (model.iterations, model.cohesion_iterations) == (2, 4)
-    assert build_scene(pb.SessionSpec(scene=_spec(volume_ml=20.0))).model.cohesion_iterations is None
+    assert (model.iterations, model.reference_iterations) == (2, 4)
+    assert build_scene(pb.SessionSpec(scene=_spec(volume_ml=20.0))).model.reference_iterations is None
 
 
 def test_catalogue_and_user_mesh_objects(tmp_path):

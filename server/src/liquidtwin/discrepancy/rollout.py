@@ -44,7 +44,7 @@ class Trajectory:
 class Simulator:
     """The episode's scene, built once; rollouts of any extension of its model.
     ``extra_iterations``: solver iterations added to the recording's stated count (the fill
-    is settled with them too), with the stated count's cohesion (``FluidModel.cohesion_iterations``)."""
+    is settled with them too), with the stated count's cohesion (``FluidModel.reference_iterations``)."""
 
     def __init__(self, ep: Episode, *, progress: bool = False, extra_iterations: int = 0):
         self.ep = ep

@@ -183,7 +183,7 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
         "effect": effs[0].as_dict() if len(effs) == 1 else None,
         "effects": [e.as_dict() for e in effs],
         "world": {"params": world.params, "iterations": world.model.iterations, "h": setup.h, "dt": setup.dt,
-                  "relaxation": world.model.relaxation, "cohesion_iterations": world.model.cohesion_iterations},
+                  "relaxation": world.model.relaxation, "reference_iterations": world.model.reference_iterations},
         "fill_ml": {"stated": world.stated_ml, "true": world.fill_ml,
                     "reports": {k: _plain(r) for k, r in reports.items()}},
         "cameras": {c.name: {"true_pose": c.pose.detach().double().tolist()} for c in setup.cameras},

@@ -25,7 +25,7 @@ from ..sim import (FluidModel, FluidState, QuadraticDrag, SDFGrid, UniformAccele
 MODEL_ITERATIONS = 4
 MODEL_RELAXATION = 4.0
 #: The world solves its constraints more thoroughly than the model: this many more iterations,
-#: with the cohesion of the model's count (``FluidModel.cohesion_iterations``; before stop 41
+#: with the cohesion of the model's count (``FluidModel.reference_iterations``; before stop 41
 #: the world's per-step cohesion was (K + 2) / K times its λ_c, a stickier liquid than stated).
 WORLD_EXTRA_ITERATIONS = 2
 
@@ -103,7 +103,7 @@ def build_world(setup, effects, rng: np.random.Generator) -> World:
     # would make the world's liquid half again as sticky as its λ_c says (pbf.FluidModel).
     base = FluidModel.create(setup.h, dt=setup.dt, iterations=model_iterations(setup) + WORLD_EXTRA_ITERATIONS,
                              relaxation=MODEL_RELAXATION, objects=objects,
-                             cohesion_iterations=model_iterations(setup))
+                             reference_iterations=model_iterations(setup))
     params = world_params(rng, base.params.as_dict())
     settle_params = dict(params)      # the fill settles without the effect's physics
     terms = []

@@ -97,21 +97,21 @@ def check_spec(spec: pb.SceneSpec, source: str = "scene spec") -> None:
 def solve_with(spec: pb.SceneSpec, iterations: int) -> pb.SceneSpec:
     """``spec`` (changed in place, and returned) solving ``iterations`` constraint iterations a
     step for the *same* liquid: cohesion stays what the stated count applies
-    (``simulation.cohesion_iterations``), so only how well the constraints are solved changes."""
+    (``simulation.reference_iterations``), so only how well the constraints are solved changes."""
     sim = simulation_settings(spec)
-    spec.simulation.cohesion_iterations = int(sim["cohesion_iterations"] or sim["iterations"])
+    spec.simulation.reference_iterations = int(sim["reference_iterations"] or sim["iterations"])
     spec.simulation.iterations = int(iterations)
     return spec
 
 
 def simulation_settings(spec: pb.SceneSpec) -> dict:
-    """{h, dt, iterations, spacing, cohesion_iterations} with the defaults filled in
-    (cohesion_iterations None: SPNets' cohesion, in full every iteration)."""
+    """{h, dt, iterations, spacing, reference_iterations} with the defaults filled in
+    (reference_iterations None: SPNets' cohesion, in full every iteration)."""
     s = spec.simulation
     h = s.h or DEFAULT_SIMULATION["h"]
     return {"h": h, "dt": s.dt or DEFAULT_SIMULATION["dt"],
             "iterations": s.iterations or DEFAULT_SIMULATION["iterations"], "spacing": s.spacing or 0.55 * h,
-            "cohesion_iterations": s.cohesion_iterations or None}
+            "reference_iterations": s.reference_iterations or None}
 
 
 def _mesh_object(o: pb.SceneObject, base: Path) -> ObjectModel:

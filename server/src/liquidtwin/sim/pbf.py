@@ -142,7 +142,7 @@ class FluidModel:
       skin: neighbour lists are built to h + skin and rebuilt when a particle moves skin/2.
       max_pieces: upper bound on anti-clipping pieces per move (a warning names any excess).
       backend: "auto", "torch" (ConvSP reference) or "fused" (C++ kernels).
-      cohesion_iterations: None (SPNets as published): cohesion and surface tension move the
+      reference_iterations: None (SPNets as published): cohesion and surface tension move the
         particles by their full λ in every one of the K iterations, so K is part of the
         liquid — more iterations, a stickier liquid (``bench/pour_iterations.py``: a quick
         cup tilted to 86° pours 19.5 ml at K = 4 and nothing at K = 16; 23.9 and 23.3 ml
@@ -168,7 +168,7 @@ class FluidModel:
     skin: float
     max_pieces: int
     backend: str
-    cohesion_iterations: int | None = None
+    reference_iterations: int | None = None
     _normal_dilation: float = field(default=0.0, repr=False)
 
     @staticmethod
@@ -177,7 +177,7 @@ class FluidModel:
                terms=(), collision_distance: float | None = None, relaxation: float = 3.0,
                damp: float = 1.0, max_speed: float | None = None, skin: float | None = None,
                max_pieces: int = 256, backend: str = "auto",
-               cohesion_iterations: int | None = None) -> "FluidModel":
+               reference_iterations: int | None = None) -> "FluidModel":
         """A model with calibrated rest density and stiffness.
 
         ``params`` overrides defaults (λ_ω = 1, λ_c = 0.1, λ_s = 0, λ_v = 60 1/s,
@@ -185,9 +185,9 @@ class FluidModel:
         """
         if not h > 0 or not dt > 0 or iterations < 1:
             raise ValueError(f"need h > 0, dt > 0, iterations >= 1 (got {h}, {dt}, {iterations})")
-        if cohesion_iterations is not None and (isinstance(cohesion_iterations, bool) or cohesion_iterations < 1
-                                                or int(cohesion_iterations) != cohesion_iterations):
-            raise ValueError(f"cohesion_iterations must be None or a whole number >= 1, got {cohesion_iterations!r}")
+        if reference_iterations is not None and (isinstance(reference_iterations, bool) or reference_iterations < 1
+                                                or int(reference_iterations) != reference_iterations):
+            raise ValueError(f"reference_iterations must be None or a whole number >= 1, got {reference_iterations!r}")
         if backend not in ("auto", "torch", "fused"):
             raise ValueError(f"backend must be auto, torch or fused, got {backend!r}")
         if backend == "fused" and not fused.available():
@@ -212,7 +212,7 @@ class FluidModel:
             collision_distance=0.0125 * h if collision_distance is None else float(collision_distance),
             relaxation=float(relaxation), damp=float(damp), max_speed=max_speed,
             skin=0.1 * h if skin is None else float(skin), max_pieces=int(max_pieces), backend=backend,
-            cohesion_iterations=None if cohesion_iterations is None else int(cohesion_iterations),
+            reference_iterations=None if reference_iterations is None else int(reference_iterations),
             _normal_dilation=dil,
         )
 
@@ -409,7 +409,7 @@ def step(model: FluidModel, state: FluidState, poses: torch.Tensor | None = None
 
     rho0 = p.rho0.to(x)
     stiff = p.lambda_omega.to(x) * model.kappa
-    per = 1.0 if model.cohesion_iterations is None else model.cohesion_iterations / model.iterations
+    per = 1.0 if model.reference_iterations is None else model.reference_iterations / model.iterations
     coh = p.lambda_c.to(x) * (h * per)
     tens = p.lambda_s.to(x) * (h * per) / (rho0 * h**3)
     for _ in range(model.iterations):
