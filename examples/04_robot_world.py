@@ -121,9 +121,10 @@ def open_session(client, world, tracking: str, iterations: int | None = None):
     a step if given), its cameras' calibrations sent."""
     spec = world.spec()
     if iterations is not None:
-        if iterations < 1:
-            raise SystemExit(f"--iterations must be at least 1, got {iterations}")
-        solve_with(spec, iterations)
+        try:
+            solve_with(spec, iterations)
+        except ValueError as e:
+            raise SystemExit(f"--iterations: {e}") from None
     session = client.create_session(spec, tracking=tracking)
     cams = world.cameras()
     for name, c in cams.items():

@@ -41,6 +41,10 @@ def test_solving_with_more_iterations_keeps_the_liquid(tmp_path):
     model = build_scene(pb.SessionSpec(scene=spec)).model
     assert (model.iterations, model.reference_iterations) == (2, 4)
     assert build_scene(pb.SessionSpec(scene=_spec(volume_ml=20.0))).model.reference_iterations is None
+    for bad in (0, 2.5, True, "4"):
+        with pytest.raises(ValueError, match="whole number"):
+            solve_with(spec, bad)
+    assert (spec.simulation.iterations, spec.simulation.reference_iterations) == (2, 4)     # unchanged
 
 
 def test_catalogue_and_user_mesh_objects(tmp_path):

@@ -97,7 +97,11 @@ def check_spec(spec: pb.SceneSpec, source: str = "scene spec") -> None:
 def solve_with(spec: pb.SceneSpec, iterations: int) -> pb.SceneSpec:
     """``spec`` (changed in place, and returned) solving ``iterations`` constraint iterations a
     step for the *same* liquid: cohesion stays what the stated count applies
-    (``simulation.reference_iterations``), so only how well the constraints are solved changes."""
+    (``simulation.reference_iterations``), so only how well the constraints are solved changes.
+    ValueError unless ``iterations`` is a whole number >= 1 (the spec is then unchanged)."""
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, float)) or iterations < 1 \
+            or int(iterations) != iterations:
+        raise ValueError(f"solver iterations must be a whole number >= 1, got {iterations!r}")
     sim = simulation_settings(spec)
     spec.simulation.reference_iterations = int(sim["reference_iterations"] or sim["iterations"])
     spec.simulation.iterations = int(iterations)
