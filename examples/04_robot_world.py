@@ -30,6 +30,7 @@ from liquidtwin.control.tilt import turn_pose
 from liquidtwin.generate.robot import RobotWorld
 from liquidtwin.scenes.spec import solve_with
 from liquidtwin_client import Client
+from liquidtwin_proto import liquidtwin_pb2 as pb
 
 #: Stamps start here (2026-01-01T00:00:00Z), like the generator's recordings.
 START_NS = 1_767_225_600_000_000_000
@@ -68,6 +69,8 @@ def main(argv=None) -> dict:
     p.add_argument("--iterations", type=int, default=None,
                    help="PBF solver iterations the robot asks of the session's model, for the same liquid "
                         "(cohesion as the scene's count applies it; default: the scene's count)")
+    p.add_argument("--pose-filter", action="store_true",
+                   help="ask the session to filter the tracked poses (its tracker's stated noise)")
     p.add_argument("--fps", type=float, default=30.0, help="frames per s (default: %(default)s)")
     p.add_argument("--max-angle", type=float, default=2.0, help="tilt limit, rad (default: %(default)s)")
     p.add_argument("--max-rate", type=float, default=1.5, help="rate limit, rad/s (default: %(default)s)")
@@ -86,7 +89,7 @@ def main(argv=None) -> dict:
     done_at, top, frames = None, 0.0, 0
     t0 = time.perf_counter()
     with Client(connect=a.connect) as client:
-        session, cams = open_session(client, world, a.tracking, a.iterations)
+        session, cams = open_session(client, world, a.tracking, a.iterations, a.pose_filter)
         session.set_pour_task("source", "target", a.ml, a.max_angle, a.max_rate, controller=a.controller)
         bar = tqdm(range(int(a.seconds * a.fps)), desc=f"{a.controller} {a.ml:g} ml", unit="frame")
         for i in bar:
@@ -110,22 +113,28 @@ def main(argv=None) -> dict:
               "switched_s": done_at, "upright": bool(world.tilt("source") < 1e-6),
               "max_tilt_deg": math.degrees(top), "frames": frames, "wall_s": time.perf_counter() - t0,
               "scene": world.setup.name, "seed": a.seed, "effects": [e.as_dict() for e in world.effects],
-              "model_iterations": a.iterations or world.spec().simulation.iterations}
+              "model_iterations": a.iterations or world.spec().simulation.iterations, "pose_filter": a.pose_filter}
     print(f"asked {a.ml:g} ml, poured {result['poured_ml']:.2f} ml (the server thought "
           f"{c.achieved_ml:.2f}), spilled {result['spilled_ml']:.2f} ml, {frames} frames")
     return save(result, a.out)
 
 
-def open_session(client, world, tracking: str, iterations: int | None = None):
+def open_session(client, world, tracking: str, iterations: int | None = None, pose_filter: bool = False):
     """A session of the world's stated scene (its model solving ``iterations`` PBF iterations
-    a step if given), its cameras' calibrations sent."""
+    a step if given; its poses filtered with the tracker's stated noise if ``pose_filter``),
+    its cameras' calibrations sent."""
     spec = world.spec()
     if iterations is not None:
         try:
             solve_with(spec, iterations)
         except ValueError as e:
             raise SystemExit(f"--iterations: {e}") from None
-    session = client.create_session(spec, tracking=tracking)
+    session_spec = pb.SessionSpec(scene=spec)
+    if pose_filter:
+        noise = world.pose_noise
+        session_spec.pose_filter.CopyFrom(pb.PoseFilter(position_noise_m=noise.pos_sigma_m,
+                                                        rotation_noise_rad=noise.rot_sigma_rad))
+    session = client.create_session(session_spec, tracking=tracking)
     cams = world.cameras()
     for name, c in cams.items():
         session.publish_camera(name, c.K, c.D, c.width, c.height, START_NS)
@@ -157,7 +166,7 @@ def catch(a) -> dict:
     dt = frame_ns * 1e-9
     x0, frames, t0 = float(world.poses[dst][0]), 0, time.perf_counter()
     with Client(connect=a.connect) as client:
-        session, cams = open_session(client, world, a.tracking, a.iterations)
+        session, cams = open_session(client, world, a.tracking, a.iterations, a.pose_filter)
         session.set_catch_task("source", "catcher")
         bar = tqdm(range(int(round(world.setup.duration * a.fps))), desc="catch", unit="frame")
         for i in bar:
@@ -173,7 +182,7 @@ def catch(a) -> dict:
               "caught": (after["catcher"] - before["catcher"]) / before["source"], "left_in_source_ml": after["source"],
               "server_achieved_ml": c.achieved_ml, "catcher_start_x_m": x0, "catcher_end_x_m": float(world.poses[dst][0]),
               "frames": frames, "wall_s": time.perf_counter() - t0, "scene": world.setup.name, "seed": a.seed,
-              "effects": [e.as_dict() for e in world.effects]}
+              "effects": [e.as_dict() for e in world.effects], "pose_filter": a.pose_filter}
     print(f"caught {result['caught_ml']:.2f} of {before['source']:.2f} ml ({100 * result['caught']:.1f} %; the server "
           f"thought {c.achieved_ml:.2f}), catcher {100 * x0:.1f} -> {100 * result['catcher_end_x_m']:.1f} cm, "
           f"{frames} frames")

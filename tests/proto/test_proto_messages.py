@@ -31,7 +31,13 @@ def _session_spec() -> pb.SessionSpec:
         scene=_spec(), cameras=[_camera()],
         fluid=pb.FluidParameters(lambda_c=0.1, lambda_v=60.0, lambda_s=0.0, lambda_omega=1.0,
                                  relaxation=4.0),
-        tracking=pb.WARP_FIELD, device="cpu", correction_gain=0.5, mask_source="rgb")
+        tracking=pb.WARP_FIELD, device="cpu", correction_gain=0.5, mask_source="rgb",
+        pose_filter=_pose_filter())
+
+
+def _pose_filter() -> pb.PoseFilter:
+    return pb.PoseFilter(position_noise_m=5e-4, rotation_noise_rad=0.005, acceleration_m_s2=2.0,
+                         angular_acceleration_rad_s2=10.0)
 
 
 def _camera() -> pb.CameraSetup:
@@ -87,6 +93,7 @@ SAMPLES = {
                                           lambda_omega=1.0, relaxation=4.0),
     "CameraSetup": _camera(),
     "SessionSpec": _session_spec(),
+    "PoseFilter": _pose_filter(),
     "Task": _task(),
     "Control": pb.Control(header=_header(9), object="cup", tilt_angle_rad=1.2, tilt_rate_rad_s=0.3,
                           achieved_ml=40.0, remaining_ml=110.0, done=True, controller="pid",

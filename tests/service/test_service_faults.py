@@ -147,6 +147,9 @@ def specs(draw):
     if draw(st.booleans()):
         spec.fluid.lambda_c = draw(floats)
     if draw(st.booleans()):
+        spec.pose_filter.position_noise_m = draw(floats)
+        spec.pose_filter.angular_acceleration_rad_s2 = draw(floats)
+    if draw(st.booleans()):
         cam = spec.cameras.add(name=draw(st.sampled_from(["cam0", "", "c/d"])), width=draw(st.integers(0, 5000)),
                                height=draw(st.integers(0, 5000)))
         cam.k.extend(draw(st.lists(floats, max_size=10)))

@@ -212,7 +212,7 @@ class CameraSetup(_message.Message):
     def __init__(self, name: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., k: _Optional[_Iterable[float]] = ..., d: _Optional[_Iterable[float]] = ..., pose: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class SessionSpec(_message.Message):
-    __slots__ = ("scene", "cameras", "fluid", "tracking", "device", "correction_gain", "mask_source")
+    __slots__ = ("scene", "cameras", "fluid", "tracking", "device", "correction_gain", "mask_source", "pose_filter")
     SCENE_FIELD_NUMBER: _ClassVar[int]
     CAMERAS_FIELD_NUMBER: _ClassVar[int]
     FLUID_FIELD_NUMBER: _ClassVar[int]
@@ -220,6 +220,7 @@ class SessionSpec(_message.Message):
     DEVICE_FIELD_NUMBER: _ClassVar[int]
     CORRECTION_GAIN_FIELD_NUMBER: _ClassVar[int]
     MASK_SOURCE_FIELD_NUMBER: _ClassVar[int]
+    POSE_FILTER_FIELD_NUMBER: _ClassVar[int]
     scene: SceneSpec
     cameras: _containers.RepeatedCompositeFieldContainer[CameraSetup]
     fluid: FluidParameters
@@ -227,7 +228,20 @@ class SessionSpec(_message.Message):
     device: str
     correction_gain: float
     mask_source: str
-    def __init__(self, scene: _Optional[_Union[SceneSpec, _Mapping]] = ..., cameras: _Optional[_Iterable[_Union[CameraSetup, _Mapping]]] = ..., fluid: _Optional[_Union[FluidParameters, _Mapping]] = ..., tracking: _Optional[_Union[TrackingMode, str]] = ..., device: _Optional[str] = ..., correction_gain: _Optional[float] = ..., mask_source: _Optional[str] = ...) -> None: ...
+    pose_filter: PoseFilter
+    def __init__(self, scene: _Optional[_Union[SceneSpec, _Mapping]] = ..., cameras: _Optional[_Iterable[_Union[CameraSetup, _Mapping]]] = ..., fluid: _Optional[_Union[FluidParameters, _Mapping]] = ..., tracking: _Optional[_Union[TrackingMode, str]] = ..., device: _Optional[str] = ..., correction_gain: _Optional[float] = ..., mask_source: _Optional[str] = ..., pose_filter: _Optional[_Union[PoseFilter, _Mapping]] = ...) -> None: ...
+
+class PoseFilter(_message.Message):
+    __slots__ = ("position_noise_m", "rotation_noise_rad", "acceleration_m_s2", "angular_acceleration_rad_s2")
+    POSITION_NOISE_M_FIELD_NUMBER: _ClassVar[int]
+    ROTATION_NOISE_RAD_FIELD_NUMBER: _ClassVar[int]
+    ACCELERATION_M_S2_FIELD_NUMBER: _ClassVar[int]
+    ANGULAR_ACCELERATION_RAD_S2_FIELD_NUMBER: _ClassVar[int]
+    position_noise_m: float
+    rotation_noise_rad: float
+    acceleration_m_s2: float
+    angular_acceleration_rad_s2: float
+    def __init__(self, position_noise_m: _Optional[float] = ..., rotation_noise_rad: _Optional[float] = ..., acceleration_m_s2: _Optional[float] = ..., angular_acceleration_rad_s2: _Optional[float] = ...) -> None: ...
 
 class Task(_message.Message):
     __slots__ = ("pour", "catch_stream", "send", "controller")

@@ -87,6 +87,12 @@ class RobotWorld:
         self.poses, self.t = target, self.t + n * self.dt
         return n
 
+    @property
+    def pose_noise(self):
+        """The object tracker's noise (:class:`~liquidtwin.sensors.PoseNoise`): what its data sheet
+        would state, e.g. for a session's pose filter."""
+        return self._pose_noise
+
     def sense(self) -> tuple[dict, dict]:
         """What the sensors report now: ({object: (7,) tracked pose}, {camera: (H, W) bool mask})."""
         reported = noisy_poses(self.poses[None], self._rng, self._pose_noise)[0]

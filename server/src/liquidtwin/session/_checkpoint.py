@@ -39,6 +39,8 @@ def engine_state(engine) -> dict:
         "extension": json.dumps(engine._ext.as_dict()) if engine._ext.name != "none" or engine._ext.base else "",
         "history": engine._history.state_dict(),
     }
+    if engine._pose_filter is not None:
+        out["pose_filter"] = engine._pose_filter.state_dict()
     if engine._initial is not engine._scene.state:
         x0, v0 = engine._initial.by_id()
         out["initial_x"], out["initial_v"] = x0.detach().cpu().clone(), v0.detach().cpu().clone()
@@ -59,6 +61,8 @@ def load_engine_state(engine, state: dict) -> None:
             or (x.shape[0] and (int(ids.min()) < 0 or int(ids.max()) >= n or ids.unique().numel() != ids.numel())):
         raise EngineError(BAD_REQUEST, f"checkpoint holds {tuple(x.shape)} particles with ids that are not "
                                        f"distinct labels of the scene's {n}")
+    if engine._pose_filter is not None:
+        engine._pose_filter.load_state_dict(state.get("pose_filter", {}))
     dev = engine._scene.state.x.device
     engine._state = FluidState(state["x"].to(dev), state["v"].to(dev), state["ids"].to(dev),
                                state["poses"].to(dev), float(state["t"]))

@@ -30,6 +30,7 @@ from ._cull import cull_fallen
 from ._extension import MAX_TIME_OFFSET_S, History, Prepared, prepare
 from ._volumes import CavityVoxels, MaskVolumes, held_count_fast
 from ._cameras import Cameras, check_pose
+from ._pose_filter import PoseFilter, PoseFilterSettings
 from ._task import create_task
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 from .overlay import make_overlay
@@ -114,6 +115,7 @@ class SessionEngine:
         if device.startswith("cuda") and not torch.cuda.is_available():
             raise EngineError(INFEASIBLE, f"device {device!r} asked for, but this server has no CUDA device")
         tracker = _tracker(spec)
+        PoseFilterSettings.from_spec(spec.pose_filter)          # refuse bad numbers before the slow build
         cameras = Cameras(spec)
         scene = build_scene(spec, device=device, progress=progress, base_dir=base_dir)
         return cls(spec, scene, cameras, tracker, device)
@@ -125,6 +127,8 @@ class SessionEngine:
         self.container_names = scene.containers
         self.dt = float(scene.model.dt)
         self._radius_m = particle_radius(float(scene.model.spacing))
+        filtering = PoseFilterSettings.from_spec(spec.pose_filter)
+        self._pose_filter = None if filtering is None else PoseFilter(filtering, len(scene.names))
         from ..discrepancy.model import Extension          # discrepancy builds on this package
         self._history = History()
         self._use(Prepared(Extension(), scene.model, scene.state, scene.ml_per_particle))
@@ -157,6 +161,8 @@ class SessionEngine:
         self._frames = 0
         self._volumes: tuple | None = None
         self._mask_vol.reset()
+        if self._pose_filter is not None:
+            self._pose_filter.reset()
         self._task = None                      # PourTask, CatchTask or SendTask
 
     # ------------------------------------------------------------------ properties
@@ -236,10 +242,13 @@ class SessionEngine:
         if isinstance(max_steps, bool) or int(max_steps) != max_steps or max_steps < 0:
             raise EngineError(BAD_REQUEST, f"max_steps must be a whole number >= 0, got {max_steps!r}")
         new = self._frame_poses.copy()
+        measured = {}
         for name, p in poses.items():
             if name not in self.object_names:
                 raise EngineError(UNKNOWN_NAME, f"no object {name!r} in the scene ({', '.join(self.object_names)})")
-            new[self.object_names.index(name)] = check_pose(p, f"object {name!r}")
+            measured[self.object_names.index(name)] = check_pose(p, f"object {name!r}")
+        for j, p in measured.items():            # all checked: a bad frame changes nothing
+            new[j] = p if self._pose_filter is None else self._pose_filter.update(t_s, j, p)
         t_prev = t_s if self._frame_t is None else self._frame_t
         n = max(0, int(math.floor((t_s - self._sim_t) / self.dt + 1e-6)))
         steps = min(n, int(max_steps))
