@@ -115,13 +115,38 @@ def _generate_one(args) -> str:
     return str(out)
 
 
+def cached(recording: Path) -> bool:
+    """Whether a benchmark recording in a ``--data`` cache can be reused: its case file exists
+    (written last, so an interrupted generation is redone) and its truth sidecar was written by
+    this generator's world (``generate.generator.WORLD_VERSION``), not an older one."""
+    from ..generate.generator import WORLD_VERSION
+    recording = Path(recording)
+    truth = recording.with_suffix(".truth.json")
+    if not recording.with_suffix(".case.json").exists() or not truth.exists():
+        return False
+    try:
+        return json.loads(truth.read_text()).get("world_version") == WORLD_VERSION
+    except (OSError, ValueError):
+        return False
+
+
+def missing_from(paths: list[Path], *, progress: bool = True) -> list[int]:
+    """Indices of ``paths`` to (re)generate; says how many are stale (an older world's)."""
+    todo = [i for i, p in enumerate(paths) if not cached(p)]
+    stale = [i for i in todo if Path(paths[i]).with_suffix(".case.json").exists()]
+    if stale and progress:
+        print(f"{len(stale)} cached recording(s) in {Path(paths[stale[0]]).parent} come from an older generator "
+              f"world: generating them again", flush=True)
+    return todo
+
+
 def ensure(case_list, data: Path, *, jobs: int = 1, progress: bool = True) -> list[Path]:
-    """Generate the recordings of ``case_list`` missing from ``data`` (``jobs`` processes);
-    return their paths in order. A recording counts as present when its case file exists
-    (written last, so an interrupted generation is redone)."""
+    """Generate the recordings of ``case_list`` missing from ``data``, or made there by an older
+    world (:func:`cached`), in ``jobs`` processes; return their paths in order."""
     data = Path(data)
     data.mkdir(parents=True, exist_ok=True)
-    missing = [c for c in case_list if not recording_path(data, c).with_suffix(".case.json").exists()]
+    paths = [recording_path(data, c) for c in case_list]
+    missing = [case_list[i] for i in missing_from(paths, progress=progress)]
     generate_all(_generate_one, [(c.as_dict(), str(data)) for c in missing], jobs=jobs,
                  desc="generate benchmark", progress=progress)
     return [recording_path(data, c) for c in case_list]

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..inference.blockage import PARTIAL
-from .benchmark import generate_all
+from .benchmark import generate_all, missing_from
 from .cli import add_common, add_likelihood_options, likelihood_options, save_results
 
 HELP = "pipe-junction blockage inference, 5 hypotheses, probability over time (thesis Fig. 7.7)"
@@ -79,7 +79,7 @@ def ensure_pipes(case_list, data: Path, *, jobs: int = 1, progress: bool = True)
     data = Path(data)
     data.mkdir(parents=True, exist_ok=True)
     paths = [data / f"{c.name}.mcap" for c in case_list]
-    work = [(c.as_dict(), str(data)) for c, p in zip(case_list, paths) if not p.with_suffix(".case.json").exists()]
+    work = [(case_list[i].as_dict(), str(data)) for i in missing_from(paths, progress=progress)]
     generate_all(_generate, work, jobs=jobs, desc="generate pipes", progress=progress)
     return paths
 

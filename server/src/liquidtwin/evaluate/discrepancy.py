@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .benchmark import generate_all
+from .benchmark import generate_all, missing_from
 from .cli import add_common, save_results
 from .tracking import map_jobs
 
@@ -181,7 +181,8 @@ def run(args) -> int:
     case_list = disc_cases(quick=args.quick, trials=args.trials, base_seed=args.seed, classes=classes)
     data = Path(args.data)
     data.mkdir(parents=True, exist_ok=True)
-    missing = [c for c in case_list if not (data / f"{c.name}.case.json").exists()]
+    missing = [case_list[i] for i in missing_from([data / f"{c.name}.mcap" for c in case_list],
+                                                  progress=not args.no_progress)]
     generate_all(_generate, [(c.as_dict(), str(data)) for c in missing], jobs=args.jobs,
                  desc="generate", progress=not args.no_progress)
     out = Path(args.out)

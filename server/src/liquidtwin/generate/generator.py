@@ -36,6 +36,11 @@ POSE_HZ = 60
 CAMERA_HZ = 30
 #: Truth file format version.
 TRUTH_VERSION = 1
+#: The generator's world: bumped whenever what it writes for a given case and seed changes
+#: (physics, sensors, scenes), so cached benchmark recordings of an older world are redone
+#: (``evaluate.benchmark.cached``). 2: stop 41, the world keeps the model's cohesion
+#: (``reference_iterations``). Recordings without it are from before.
+WORLD_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -179,7 +184,7 @@ def generate(scene: str, out: str | Path, *, effects=(), seed: int = 0, quick: b
                         frame_world_step=np.array([f[1] for f in truth_frames], np.int64),
                         dt=np.float64(setup.dt))
     truth = {
-        "version": TRUTH_VERSION, "scene": scene, "seed": seed, "quick": quick, "choices": {k: v for k, v in (choices or {}).items() if v is not None}, "rgb": rgb, "noise": noise,
+        "version": TRUTH_VERSION, "world_version": WORLD_VERSION, "scene": scene, "seed": seed, "quick": quick, "choices": {k: v for k, v in (choices or {}).items() if v is not None}, "rgb": rgb, "noise": noise,
         "effect": effs[0].as_dict() if len(effs) == 1 else None,
         "effects": [e.as_dict() for e in effs],
         "world": {"params": world.params, "iterations": world.model.iterations, "h": setup.h, "dt": setup.dt,
