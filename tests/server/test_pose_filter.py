@@ -173,3 +173,19 @@ def test_bad_filter_settings_are_refused_before_the_scene_is_built(rec):
     with pytest.raises(EngineError) as err:
         _engine(rec, pose_filter=pb.PoseFilter(position_noise_m=-1.0))
     assert err.value.code == pb.Error.BAD_REQUEST
+
+
+def test_evaluate_tracking_pose_filter_setting(rec):
+    """`evaluate tracking --pose-filter`: 'auto' reads the noise off the recording's own poses
+    (the generator's tracker: 0.5 mm and 0.3° white per axis), or takes given numbers."""
+    import argparse
+    from liquidtwin.evaluate.tracking import pose_filter_arg, pose_filter_for
+    auto = pose_filter_for(rec, "auto")
+    assert 0.35e-3 < auto.position_noise_m < 0.65e-3, auto
+    assert math.radians(0.2) < auto.rotation_noise_rad < math.radians(0.4), auto
+    given = pose_filter_for(rec, pose_filter_arg("0.001,0.01,3,30"))
+    assert (given.position_noise_m, given.angular_acceleration_rad_s2) == (0.001, 30.0)
+    assert pose_filter_for(rec, None) is None
+    for bad in ("1", "a,b", "0.001,-1", "0.001,0.01,3", "nan,0"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            pose_filter_arg(bad)

@@ -26,6 +26,7 @@ processes generate the missing recordings and then replay the cases (one case pe
 
 from __future__ import annotations
 
+import argparse
 import math
 from pathlib import Path
 
@@ -60,6 +61,41 @@ def configure(p) -> None:
                         "column is scored against the recorded masks (default: recorded)")
     p.add_argument("--detector", type=Path, default=None, metavar="MODEL.pt",
                    help="liquid detector for --masks detected (default: the shipped model)")
+    p.add_argument("--pose-filter", nargs="?", const="auto", default=None, type=pose_filter_arg,
+                   metavar="auto|M,RAD[,ACC,ANGACC]",
+                   help="replay with the session's pose filter (SessionSpec.pose_filter): 'auto' (the "
+                        "default when given without a value) sets its noise to the level estimated from each "
+                        "recording's own poses; or the tracker's noise in m and rad, and optionally the "
+                        "process noise in m/s² and rad/s² (default: no filter)")
+
+
+def pose_filter_arg(text: str) -> str:
+    """--pose-filter's value, checked: "auto" or 2 or 4 comma-separated numbers >= 0."""
+    if text == "auto":
+        return text
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) not in (2, 4) or not all(np.isfinite(v) and v >= 0 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected 'auto' or M,RAD[,ACC,ANGACC] (numbers >= 0), got {text!r}")
+    return text
+
+
+def pose_filter_for(rec, setting: str | None):
+    """The ``pb.PoseFilter`` of a --pose-filter setting for recording ``rec`` (None: no filter).
+    "auto": the median over objects of the white noise level estimated from the recording's
+    own poses (``recordings._interp.pose_noise_level``), default process noise."""
+    if setting is None:
+        return None
+    from liquidtwin_proto import liquidtwin_pb2 as pb
+    if setting == "auto":
+        from ..recordings._interp import pose_noise_level
+        pos, rot = np.median(pose_noise_level(np.asarray(rec.poses, float)), axis=0)
+        return pb.PoseFilter(position_noise_m=float(pos), rotation_noise_rad=float(rot))
+    vals = [float(v) for v in setting.split(",")] + [0.0, 0.0]
+    return pb.PoseFilter(position_noise_m=vals[0], rotation_noise_rad=vals[1], acceleration_m_s2=vals[2],
+                         angular_acceleration_rad_s2=vals[3])
 
 
 def columns_for(trackers, masks) -> list[str]:
@@ -153,10 +189,12 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
 
 
 def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: bool = True,
-                  iterations: int | None = None, masks=("recorded",), detector: Path | None = None) -> dict:
+                  iterations: int | None = None, masks=("recorded",), detector: Path | None = None,
+                  pose_filter: str | None = None) -> dict:
     """{column (:func:`columns_for`): {"t_s", "iou", "observed_px"} or None (tracker not
     available)}; ``iterations``: the model's solver iterations (None: the recording's);
-    ``masks``: mask sources; ``detector``: model file for detected masks (None: shipped).
+    ``masks``: mask sources; ``detector``: model file for detected masks (None: shipped);
+    ``pose_filter``: a --pose-filter setting for every tracker's session (:func:`pose_filter_for`).
     With detected masks, also "detector": the detector's masks against the recorded ones."""
     import dataclasses
 
@@ -166,6 +204,11 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: b
     camera = next(iter(rec.masks))
     stamps, recorded = rec.masks[camera]
     series, notes, extra = {}, {}, {}
+    filt = pose_filter_for(rec, pose_filter)
+    fields = {} if filt is None else {"pose_filter": filt}
+    if filt is not None:
+        extra["pose_filter"] = [filt.position_noise_m, filt.rotation_noise_rad, filt.acceleration_m_s2,
+                                filt.angular_acceleration_rad_s2]
     engine = None
     for src in masks:
         fed, reference = rec, None
@@ -179,7 +222,7 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: b
             if col in series:
                 continue
             try:
-                engine = engine_for(rec, t)
+                engine = engine_for(rec, t, **fields)
             except EngineError as e:
                 if e.code != INFEASIBLE:
                     raise
@@ -229,7 +272,8 @@ def run(args) -> int:
     case_list = selected_cases(args, rgb="detected" in masks)
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
-    work = [(str(p), tuple(trackers), args.frames, args.iterations, tuple(masks), detector) for p in paths]
+    work = [(str(p), tuple(trackers), args.frames, args.iterations, tuple(masks), detector, args.pose_filter)
+            for p in paths]
     bar = tqdm(total=len(work), desc="replay", unit="case", disable=args.no_progress)
     for case, path, r in zip(case_list, paths, map_jobs(_evaluate_one, work, args.jobs)):
         bar.update()
@@ -241,6 +285,7 @@ def run(args) -> int:
     note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
             f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else "")
             + (f", model solver iterations {args.iterations}" if args.iterations else "")
+            + (f", pose filter {args.pose_filter}" if args.pose_filter else "")
             + "; ceiling = the true particles drawn as the model (scoring only)"
             + ("; TRACKER det = corrected with the RGB detector's masks, scored against the recorded masks"
                if "detected" in masks else ""))
@@ -254,7 +299,8 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = {"kind": "tracking", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
-           "frames": args.frames, "iterations": args.iterations, "min_px": args.min_px, "trackers": trackers,
+           "frames": args.frames, "iterations": args.iterations, "pose_filter": args.pose_filter,
+           "min_px": args.min_px, "trackers": trackers,
            "masks": masks, "detector": detector, "columns": columns,
            "table": tab, "table_text": text, "cases": results}
     closed = [c for c in columns if c not in ("open_loop", "ceiling") and tab["overall"].get(c) is not None]
@@ -269,9 +315,9 @@ def run(args) -> int:
 def _evaluate_one(job) -> dict:
     import torch
     torch.set_num_threads(1)
-    path, trackers, frames, iterations, masks, detector = job
+    path, trackers, frames, iterations, masks, detector, pose_filter = job
     return evaluate_case(Path(path), trackers, frames=frames, iterations=iterations, masks=masks,
-                         detector=None if detector is None else Path(detector))
+                         detector=None if detector is None else Path(detector), pose_filter=pose_filter)
 
 
 def map_jobs(fn, work: list, jobs: int):
