@@ -64,7 +64,9 @@ def main(argv=None) -> dict:
                    help="hidden effect NAME or NAME=VALUE (repeatable; default: none)")
     p.add_argument("--no-noise", action="store_true", help="perfect sensors")
     p.add_argument("--ml", type=float, default=8.0, help="ml to pour (default: %(default)s)")
-    p.add_argument("--controller", default="mpc", choices=("pid", "mpc"), help="(default: %(default)s)")
+    p.add_argument("--controller", default="mpc", choices=("pid", "mpc", "policy"),
+                   help="pour: pid or mpc; catch: mpc or policy (the server's learned catching policy) "
+                        "(default: %(default)s)")
     p.add_argument("--tracking", default="warp_field", help="session tracker (default: %(default)s)")
     p.add_argument("--iterations", type=int, default=None,
                    help="PBF solver iterations the robot asks of the session's model, for the same liquid "
@@ -80,7 +82,11 @@ def main(argv=None) -> dict:
     a = p.parse_args(argv)
 
     if a.task == "catch":
+        if a.controller == "pid":
+            p.error("--task catch runs --controller mpc or policy")
         return catch(a)
+    if a.controller == "policy":
+        p.error("--controller policy is a catching policy: use it with --task catch")
     world = RobotWorld(a.scene or "pour_dump", seed=a.seed, quick=True, effects=a.effect, noise=not a.no_noise,
                        choices={"source": a.source, "target": a.target})
     before = world.held_ml()
@@ -167,7 +173,7 @@ def catch(a) -> dict:
     x0, frames, t0 = float(world.poses[dst][0]), 0, time.perf_counter()
     with Client(connect=a.connect) as client:
         session, cams = open_session(client, world, a.tracking, a.iterations, a.pose_filter)
-        session.set_catch_task("source", "catcher")
+        session.set_catch_task("source", "catcher", controller=a.controller)
         bar = tqdm(range(int(round(world.setup.duration * a.fps))), desc="catch", unit="frame")
         for i in bar:
             c = exchange(session, world, cams, START_NS + i * frame_ns, a.timeout)
@@ -182,7 +188,8 @@ def catch(a) -> dict:
               "caught": (after["catcher"] - before["catcher"]) / before["source"], "left_in_source_ml": after["source"],
               "server_achieved_ml": c.achieved_ml, "catcher_start_x_m": x0, "catcher_end_x_m": float(world.poses[dst][0]),
               "frames": frames, "wall_s": time.perf_counter() - t0, "scene": world.setup.name, "seed": a.seed,
-              "effects": [e.as_dict() for e in world.effects], "pose_filter": a.pose_filter}
+              "effects": [e.as_dict() for e in world.effects], "pose_filter": a.pose_filter,
+              "controller": a.controller}
     print(f"caught {result['caught_ml']:.2f} of {before['source']:.2f} ml ({100 * result['caught']:.1f} %; the server "
           f"thought {c.achieved_ml:.2f}), catcher {100 * x0:.1f} -> {100 * result['catcher_end_x_m']:.1f} cm, "
           f"{frames} frames")

@@ -66,19 +66,21 @@ def _catch_engine(motion: int, fraction: float):
     return setup, spec, eng
 
 
-def test_catch_task_catches_a_moving_stream_closed_loop_and_checkpoints():
+@pytest.mark.parametrize("controller", ["mpc", "policy"])
+def test_catch_task_catches_a_moving_stream_closed_loop_and_checkpoints(controller):
     """Source motion 3 (pours towards −x, the stream lands ~8.5 cm from the catcher's start),
-    a fifth of the fill: the served MPC catches far more than a catcher left where it starts."""
+    a fifth of the fill: the served MPC, and the learned policy, catch far more than a catcher
+    left where it starts."""
     setup, spec, eng = _catch_engine(3, 0.2)
     _, _, still = _catch_engine(3, 0.2)
     src = setup.index("source")
     held = eng.volumes()["source"]
-    eng.set_task(pb.Task(catch_stream=pb.Task.CatchStream(source="source", catcher="catcher")))
+    eng.set_task(pb.Task(catch_stream=pb.Task.CatchStream(source="source", catcher="catcher"), controller=controller))
     pose = np.asarray(spec.objects[setup.index("catcher")].initial_pose, float)
     x0, dt, t, i = pose[0], 1.0 / FPS, 0.0, 0
     while t < setup.duration:
         c = eng.control()
-        assert c.object == "catcher" and c.controller == "mpc" and len(c.pose) == 7
+        assert c.object == "catcher" and c.controller == controller and len(c.pose) == 7
         assert abs(c.linear_velocity_m_s[0]) <= 0.5 + 1e-9 and abs(c.pose[0] - x0) <= 0.3 + 1e-9
         assert np.allclose(c.pose[1:], pose[1:])                 # it only slides along x
         nxt, t = np.asarray(c.pose), t + dt
@@ -137,7 +139,9 @@ def catch_scene():
     (pb.Task(catch_stream=pb.Task.CatchStream(source="source", catcher="source")), "BAD_REQUEST", "twice"),
     (pb.Task(catch_stream=pb.Task.CatchStream(source="catcher", catcher="source")), "INFEASIBLE", "no liquid"),
     (pb.Task(catch_stream=pb.Task.CatchStream(source="source", catcher="catcher"), controller="pid"), "BAD_REQUEST",
-     "only the 'mpc'"),
+     "'mpc', 'policy', got 'pid'"),
+    (pb.Task(send=pb.Task.SendToContainer(object="source", target="catcher"), controller="policy"), "BAD_REQUEST",
+     "'mpc', got 'policy'"),
     (pb.Task(catch_stream=pb.Task.CatchStream(source="source", catcher="catcher", max_speed_m_s=-1)), "BAD_REQUEST",
      "max_speed_m_s"),
     (pb.Task(catch_stream=pb.Task.CatchStream(source="source", catcher="catcher", range_m=float("nan"))),

@@ -201,12 +201,13 @@ class SessionHandle:
         return self._rpc("set_task", SetTaskRequest(header=self._header(), task=task), timeout)
 
     def set_catch_task(self, source: str, catcher: str, max_speed_m_s: float = 0.0, range_m: float = 0.0,
-                       timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
+                       controller: str = "mpc", timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
         """Ask the controller to slide container ``catcher`` along world x under the liquid
         falling from ``source`` (which someone else moves); limits: speed (m/s) and range either
-        way from where the catcher is now (m), 0 = the server's defaults. Each Control's
-        ``pose`` is where the catcher should be at the next frame."""
-        task = Task(controller="mpc")
+        way from where the catcher is now (m), 0 = the server's defaults. ``controller``: "mpc"
+        or "policy" (the server's learned catching policy: one network evaluation a frame).
+        Each Control's ``pose`` is where the catcher should be at the next frame."""
+        task = Task(controller=controller)
         task.catch_stream.source, task.catch_stream.catcher = source, catcher
         task.catch_stream.max_speed_m_s, task.catch_stream.range_m = float(max_speed_m_s), float(range_m)
         return self._rpc("set_task", SetTaskRequest(header=self._header(), task=task), timeout)

@@ -100,14 +100,25 @@ class CatchPolicy(nn.Module):
         """(H, W) image of the particles x (N, 3) m seen from the catcher at x = q[0] m
         (differentiable w.r.t. x and q)."""
         base = torch.as_tensor(setup.poses_at(0.0)[setup.index("catcher")][:3], dtype=x.dtype)
-        rel = x - torch.stack([q[0].to(x.dtype), base[1], base[2]])
-        uv, _ = self.camera.project(rel)
+        return self.image(x, torch.stack([q[0].to(x.dtype), base[1], base[2]]))
+
+    def image(self, x: torch.Tensor, catcher: torch.Tensor) -> torch.Tensor:
+        """(H, W) image of the particles x (N, 3) m seen from a catcher whose origin is at
+        ``catcher`` (3,) m, world frame (the camera moves with it)."""
+        uv, _ = self.camera.project(x - catcher.to(x.dtype))
         return splat(uv, None, HEIGHT, WIDTH, sigma_px=SIGMA_PX)
 
     def control(self, x: torch.Tensor, q: torch.Tensor, setup) -> torch.Tensor:
         """(1,) the catcher's velocity, m/s, float64."""
         image = self.observe(x, q, setup).to(self.conv.weight.dtype)
         return (MAX_SPEED * self(image[None])).to(torch.float64)
+
+    def control_at(self, x: torch.Tensor, catcher) -> float:
+        """The catcher's velocity along x, m/s, for particles x (N, 3) and the catcher's origin
+        (3,) m, world frame (a session's catch task: no setup, no gradient)."""
+        with torch.no_grad():
+            image = self.image(x, torch.as_tensor(np.asarray(catcher, float)[:3], dtype=x.dtype))
+            return float(MAX_SPEED * self(image.to(self.conv.weight.dtype)[None])[0])
 
 
 def save_policy(path, policy: CatchPolicy, meta: dict | None = None) -> Path:

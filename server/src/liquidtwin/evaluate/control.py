@@ -108,7 +108,7 @@ def run_motion(work) -> dict:
     torch.set_num_threads(1)
     if served:
         from .served import serve_catch
-        return serve_catch(motion, seed, quick, served)
+        return serve_catch(motion, seed, quick, served, controller="mpc" if policy_file is None else "policy")
     policy = None
     if policy_file is not None:
         from ..control.policy import load_policy
@@ -269,8 +269,11 @@ def run(args) -> int:
     if args.served:
         if not (np.isfinite(args.served) and args.served > 0):
             raise SystemExit(f"--served takes frames per second > 0, got {args.served}")
-        if args.scene == "pouring" or args.controller == "policy":
-            raise SystemExit("--served runs the plate and catching MPCs; a served pour: python bench/session_pour.py")
+        if args.scene == "pouring":
+            raise SystemExit("--served runs the plate and catching tasks; a served pour: python bench/session_pour.py")
+        if args.controller == "policy" and (args.scene != "catching" or args.policy is not None):
+            raise SystemExit("--served --controller policy runs the shipped catching policy (a session's catch "
+                             "task with controller 'policy'); --policy FILE is for offline runs")
     if args.scene == "pouring":
         return run_pouring(args)
     targets = _targets(args)

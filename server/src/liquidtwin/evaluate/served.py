@@ -69,8 +69,9 @@ def serve_plate(target: int, seed: int, quick: bool, seconds: float, fps: float)
             "update_s": float(np.median(update_s)), "update_s_max": float(np.max(update_s)), "fps": fps}
 
 
-def serve_catch(motion: int, seed: int, quick: bool, fps: float) -> dict:
-    """Catching source motion ``motion`` as a session's catch task."""
+def serve_catch(motion: int, seed: int, quick: bool, fps: float, controller: str = "mpc") -> dict:
+    """Catching source motion ``motion`` as a session's catch task (``controller`` "mpc" or
+    "policy": the shipped learned policy)."""
     from liquidtwin_proto import liquidtwin_pb2 as pb
 
     from ..control.catch import catching_setup
@@ -79,7 +80,7 @@ def serve_catch(motion: int, seed: int, quick: bool, fps: float) -> dict:
     held = eng.volumes()["source"]
     t0 = time.perf_counter()
     poses, update_s = _drive(eng, setup, "catcher", pb.Task(catch_stream=pb.Task.CatchStream(
-        source="source", catcher="catcher")), fps, setup.duration, script=("source",))
+        source="source", catcher="catcher"), controller=controller), fps, setup.duration, script=("source",))
     wall = time.perf_counter() - t0
     vols = eng.volumes()
     xs = poses[:, 0]

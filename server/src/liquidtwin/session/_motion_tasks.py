@@ -4,7 +4,9 @@ with gradients through the session's model, from the tracked particles, one upda
 - ``catch_stream``: slide the catcher along world x under what falls from the source. The
   source is someone else's: its poses of the last two updates are extrapolated at the same
   twist (:func:`liquidtwin.control.catch.extrapolate_pose`) for the rollouts and the
-  first-landing prediction.
+  first-landing prediction. ``controller = "policy"`` runs the shipped learned catching
+  policy (:mod:`liquidtwin.control.policy`, thesis §8.3.4) on the session's particles
+  instead: one network evaluation per frame, no rollout.
 - ``send``: tilt an object the liquid rests on about world x and z through its origin so the
   liquid lands in the target (the plate MPC's loss, :func:`liquidtwin.control.plate.send_loss`,
   over the particles the object held when the task was set).
@@ -21,7 +23,8 @@ import numpy as np
 import torch
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
-from ..control.catch import FALLING_MIN, MAX_SPEED, RANGE, CatchMPC, CatchParts, extrapolate_pose, slide_space
+from ..control.catch import FALLING_MIN, MAX_SPEED, RANGE, CatchLoss, CatchMPC, CatchParts, extrapolate_pose, \
+    slide_space
 from ..control.mpc import MPC
 from ..control.plate import LOOKAHEAD_S, MAX_RATE, MAX_TILT, UPRIGHT_WEIGHT, aim_point, send_loss, tilt2_of, \
     tilt2_space
@@ -35,11 +38,11 @@ HORIZON = 10
 CATCH_STEP, SEND_STEP = 0.1, 0.5
 
 
-def _check_common(task: pb.Task, names, roles: dict, containers: tuple) -> None:
+def _check_common(task: pb.Task, names, roles: dict, containers: tuple, controllers=("mpc",)) -> None:
     """Controller, names, distinct objects; ``roles``: {role: (name, must be a container)}."""
-    if task.controller not in ("", "mpc"):
-        raise EngineError(BAD_REQUEST, f"a {task.WhichOneof('kind')} task has only the 'mpc' controller, "
-                                       f"got {task.controller!r}")
+    if task.controller not in ("",) + tuple(controllers):
+        raise EngineError(BAD_REQUEST, f"a {task.WhichOneof('kind')} task has the controller(s) "
+                                       f"{', '.join(repr(c) for c in controllers)}, got {task.controller!r}")
     for role, (name, container) in roles.items():
         if name not in names:
             raise EngineError(UNKNOWN_NAME, f"{role} {name!r} is not an object of the scene ({', '.join(names)})")
@@ -62,10 +65,25 @@ def _elapsed(eng, last_sim_t: float) -> int:
     return 1 if last_sim_t < 0 else max(1, int(round((eng._sim_t - last_sim_t) / eng.dt)))
 
 
+_POLICY = None
+
+
+def shipped_policy():
+    """The shipped catching policy, loaded once per process (EngineError INFEASIBLE if unusable)."""
+    global _POLICY
+    if _POLICY is None:
+        from ..control.policy import PolicyError, load_policy
+        try:
+            _POLICY = load_policy()[0]
+        except (PolicyError, OSError) as e:
+            raise EngineError(INFEASIBLE, f"catch controller 'policy': {e}") from e
+    return _POLICY
+
+
 def _control(obj: str, pose_next: np.ndarray, point: np.ndarray, linear, angular, *, achieved: float,
-             remaining: float, done: bool) -> pb.Control:
+             remaining: float, done: bool, controller: str = "mpc") -> pb.Control:
     return pb.Control(object=obj, achieved_ml=achieved, remaining_ml=max(remaining, 0.0), done=done,
-                      controller="mpc", axis_point_m=[float(a) for a in point], pose=[float(a) for a in pose_next],
+                      controller=controller, axis_point_m=[float(a) for a in point], pose=[float(a) for a in pose_next],
                       linear_velocity_m_s=[float(a) for a in linear], angular_velocity_rad_s=[float(a) for a in angular])
 
 
@@ -84,6 +102,7 @@ class CatchTask:
         pose = eng._frame_poses[self.dst]
         self.ctrl = CatchMPC(eng._model, slide_space(np.repeat(eng._frame_poses[None], HORIZON, 0), self.dst, x0,
                                                      range_m, max_speed), horizon=HORIZON, step_size=CATCH_STEP)
+        self.policy = shipped_policy() if task.controller == "policy" else None
         self.prev = None                             # (sim t, (7,) source pose) at the previous update
         self.last_sim_t, self.control_frame = -1.0, -1
         self.command = (np.asarray(pose, float).copy(), 0.0, False)    # (pose next frame, speed m/s, done)
@@ -93,7 +112,7 @@ class CatchTask:
         c = task.catch_stream
         if state is None:
             _check_common(task, eng.object_names, {"catch source": (c.source, True), "catcher": (c.catcher, True)},
-                          eng.container_names)
+                          eng.container_names, controllers=("mpc", "policy"))
             max_speed = _limit(c.max_speed_m_s, MAX_SPEED, "max_speed_m_s")
             range_m = _limit(c.range_m, RANGE, "range_m")
             vols = eng.volumes()
@@ -132,12 +151,15 @@ class CatchTask:
         pose_next, speed, done = self.command
         point = eng._frame_poses[self.dst][:3]
         return _control(self.task.catch_stream.catcher, pose_next, point, [speed, 0.0, 0.0], [0.0, 0.0, 0.0],
-                        achieved=achieved, remaining=vols[self.task.catch_stream.source], done=done)
+                        achieved=achieved, remaining=vols[self.task.catch_stream.source], done=done,
+                        controller=self.task.controller or "mpc")
 
     def _update(self, eng):
         elapsed = _elapsed(eng, self.last_sim_t)
         parts = self.parts(eng)
         t = eng._sim_t
+        if self.policy is not None:
+            return self._policy_update(eng, parts, elapsed)
         base = np.stack([parts.poses_at(t + (i + 1) * eng.dt) for i in range(HORIZON)])
         space = slide_space(base, self.dst, self.x0, self.range_m, self.max_speed)
         x = float(eng._frame_poses[self.dst][0])
@@ -149,9 +171,21 @@ class CatchTask:
         self.last_sim_t = t
         pose = eng._frame_poses[self.dst].copy()
         pose[0] = min(max(x + u * elapsed * eng.dt, self.x0 - self.range_m), self.x0 + self.range_m)
+        return pose, u, self._done(eng, loss)
+
+    def _policy_update(self, eng, parts, elapsed: int):
+        """The learned policy's velocity from the session's particles, held until the next frame."""
+        x = float(eng._frame_poses[self.dst][0])
+        u = min(max(self.policy.control_at(eng._state.x, eng._frame_poses[self.dst]), -self.max_speed), self.max_speed)
+        self.prev, self.last_sim_t = (eng._sim_t, eng._frame_poses[self.src].copy()), eng._sim_t
+        pose = eng._frame_poses[self.dst].copy()
+        pose[0] = min(max(x + u * elapsed * eng.dt, self.x0 - self.range_m), self.x0 + self.range_m)
+        return pose, u, self._done(eng, CatchLoss(parts, eng._model, eng._state, x))
+
+    def _done(self, eng, loss) -> bool:
+        """The source (next to) empty and nothing falling."""
         in_src = float(held(eng._model, eng._state, self.src, self.src_obj)[0].sum()) * eng._ml_per_particle
-        done = in_src < FALLING_MIN * self.src_ml0 and loss.landing(eng._state) is None
-        return pose, u, bool(done)
+        return bool(in_src < FALLING_MIN * self.src_ml0 and loss.landing(eng._state) is None)
 
     def state_dict(self) -> dict:
         pose, speed, done = self.command
