@@ -6,7 +6,7 @@ chaotic rollout?
 Both files come from ``liquidtwin evaluate tracking`` over the same recordings (e.g. the
 same pours tracked with two detectors, ``--detector``). For every column both runs have
 (``map_filter/detected``, ``warp_field`` …), and for the detector's own mask IOU when both
-used one, it pairs the pours by recording, takes each pour's mean IOU (B − A) and prints the
+used one, it pairs the pours by case (their ceilings must agree), takes each pour's mean IOU (B − A) and prints the
 mean difference with a bootstrap 95 % interval over pours and how many pours B wins. The
 table of ``evaluate tracking`` pools frames instead, so its overall row weighs long pours more.
 """
@@ -24,12 +24,22 @@ from liquidtwin.evaluate.tracking import series_mean
 MIN_PX = 50
 
 
+def _key(case: dict) -> str:
+    """A pour's identity: its benchmark case name (the recording's file name without suffix),
+    so runs over two --data directories of the same cases pair up."""
+    return case["case"]["name"] if "case" in case else Path(case["recording"]).stem
+
+
 def paired(a: dict, b: dict, *, min_px: int = MIN_PX, resamples: int = 5000, seed: int = 0) -> list[dict]:
     """Per column: n pours, mean B − A, 95 % bootstrap interval, pours where B > A."""
-    ca, cb = ({c["recording"]: c for c in doc["cases"]} for doc in (a, b))
+    ca, cb = ({_key(c): c for c in doc["cases"]} for doc in (a, b))
     common = [k for k in ca if k in cb]
     if not common:
-        raise SystemExit("the two runs share no recording: compare runs over the same --data and cases")
+        raise SystemExit("the two runs share no recording: compare runs over the same cases")
+    for k in common:            # the same case name in two --data dirs must be the same recording
+        x, y = ca[k]["mean_iou"].get("ceiling"), cb[k]["mean_iou"].get("ceiling")
+        if x is not None and y is not None and abs(x - y) > 1e-9:
+            raise SystemExit(f"{k}: the runs' ceilings differ ({x:.6f}, {y:.6f}): not the same recording")
     columns = [c for c in ca[common[0]]["mean_iou"] if c != "ceiling" and c in cb[common[0]]["mean_iou"]]
     values = {c: [(ca[k]["mean_iou"].get(c), cb[k]["mean_iou"].get(c)) for k in common] for c in columns}
     values["detector mask"] = [(series_mean(ca[k].get("detector"), min_px), series_mean(cb[k].get("detector"), min_px))

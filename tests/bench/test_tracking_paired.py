@@ -50,3 +50,13 @@ def test_script_prints_the_table_and_refuses_unrelated_runs(tmp_path):
     r = subprocess.run([sys.executable, str(ROOT / "bench" / "tracking_paired.py"), str(fa), str(fb)],
                        capture_output=True, text=True)
     assert r.returncode != 0 and "share no recording" in r.stderr
+
+
+def test_runs_over_two_data_directories_pair_by_case_unless_their_ceilings_differ():
+    a, b = _run([0.2, 0.3], [0.1, 0.1]), _run([0.3, 0.4], [0.1, 0.1])
+    for i, c in enumerate(b["cases"]):
+        c["recording"] = f"/elsewhere/pour{i}.mcap"                       # the same cases, another --data
+    assert {r["column"]: r["pours"] for r in paired(a, b)}["warp_field/detected"] == 2
+    b["cases"][1]["mean_iou"]["ceiling"] = 0.5                             # not the same recording after all
+    with pytest.raises(SystemExit, match="ceilings differ"):
+        paired(a, b)
