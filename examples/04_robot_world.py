@@ -42,11 +42,19 @@ def effect_arg(text: str):
     return (name, float(value) if value else None)
 
 
+#: The server's latest volumes, {container: (particle-count ml, mask-model ml or None)}.
+VOLUMES: dict = {}
+
+
 def wait_control(session, stamp: int, timeout: float):
-    """The Control answering the frame stamped ``stamp`` (other outputs are skipped)."""
+    """The Control answering the frame stamped ``stamp`` (volumes are kept in ``VOLUMES``,
+    other outputs skipped)."""
     deadline = time.monotonic() + timeout
     while (left := deadline - time.monotonic()) > 0:
         out = session.next_output(timeout=left)
+        if out is not None and out.stream == "volumes":
+            VOLUMES.update({c.name: (c.ml, c.mask_ml if c.HasField("mask_ml") else None)
+                            for c in out.message.containers})
         if out is not None and out.stream == "control" and out.header.stamp_ns == stamp:
             return out.message
     raise TimeoutError(f"no control for the frame stamped {stamp} within {timeout} s")
@@ -119,7 +127,8 @@ def main(argv=None) -> dict:
               "switched_s": done_at, "upright": bool(world.tilt("source") < 1e-6),
               "max_tilt_deg": math.degrees(top), "frames": frames, "wall_s": time.perf_counter() - t0,
               "scene": world.setup.name, "seed": a.seed, "effects": [e.as_dict() for e in world.effects],
-              "model_iterations": a.iterations or world.spec().simulation.iterations, "pose_filter": a.pose_filter}
+              "model_iterations": a.iterations or world.spec().simulation.iterations, "pose_filter": a.pose_filter,
+              "server_volumes_ml": dict(VOLUMES), "true_held_ml": after}
     print(f"asked {a.ml:g} ml, poured {result['poured_ml']:.2f} ml (the server thought "
           f"{c.achieved_ml:.2f}), spilled {result['spilled_ml']:.2f} ml, {frames} frames")
     return save(result, a.out)
@@ -189,7 +198,7 @@ def catch(a) -> dict:
               "server_achieved_ml": c.achieved_ml, "catcher_start_x_m": x0, "catcher_end_x_m": float(world.poses[dst][0]),
               "frames": frames, "wall_s": time.perf_counter() - t0, "scene": world.setup.name, "seed": a.seed,
               "effects": [e.as_dict() for e in world.effects], "pose_filter": a.pose_filter,
-              "controller": a.controller}
+              "controller": a.controller, "server_volumes_ml": dict(VOLUMES), "true_held_ml": after}
     print(f"caught {result['caught_ml']:.2f} of {before['source']:.2f} ml ({100 * result['caught']:.1f} %; the server "
           f"thought {c.achieved_ml:.2f}), catcher {100 * x0:.1f} -> {100 * result['catcher_end_x_m']:.1f} cm, "
           f"{frames} frames")
