@@ -136,3 +136,15 @@ def test_the_client_needs_neither_torch_nor_the_server_nor_the_viewer():
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == str(len(STAMPS))
+
+
+def test_pose_filter_goes_into_the_session_spec(fake_server, tmp_path, capsys):
+    code, _, _ = _stream(fake_server, tmp_path, "--session", "pf", "--rate", "max", "--pose-filter", "0.0005,0.005,1,5")
+    assert code == 0
+    (_, _, req), *_ = fake_server.requests
+    f = req.spec.pose_filter
+    assert (f.position_noise_m, f.rotation_noise_rad, f.acceleration_m_s2, f.angular_acceleration_rad_s2) == \
+        (0.0005, 0.005, 1.0, 5.0)
+    with pytest.raises(SystemExit) as err:
+        main(["stream", str(GOLDEN), "--pose-filter", "0.001,-1"])
+    assert err.value.code == 2 and "M,RAD" in capsys.readouterr().err

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import asdict
 from datetime import datetime, timezone
@@ -67,6 +68,10 @@ def _add_stream(commands) -> None:
                    help="recorded: send the recording's masks; rgb: send only its RGB images and have "
                    "the server's liquid detector make the masks (session mask_source 'rgb') "
                    "(default: recorded)")
+    p.add_argument("--pose-filter", metavar="M,RAD[,ACC,ANGACC]", type=_pose_filter, default=None,
+                   help="have the session filter the object poses (SessionSpec.pose_filter): the tracker's "
+                   "white noise per axis in m and rad, optionally the process noise in m/s² and rad/s² "
+                   "(default: poses used as recorded)")
     p.add_argument("--connect", metavar="EP", default=DEFAULT_CONNECT,
                    help=f"Zenoh endpoint of the server or router (default: {DEFAULT_CONNECT})")
     p.add_argument("--prefix", metavar="P", default=DEFAULT_PREFIX,
@@ -84,6 +89,17 @@ def _add_stream(commands) -> None:
                    help="seconds to wait for a frame's particles (default: 30)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(run=_stream)
+
+
+def _pose_filter(text: str) -> list[float]:
+    """--pose-filter: 2 or 4 comma-separated finite numbers >= 0."""
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) not in (2, 4) or not all(math.isfinite(v) and v >= 0 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected M,RAD[,ACC,ANGACC] (numbers >= 0), got {text!r}")
+    return vals
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,6 +142,11 @@ def _stream(args: argparse.Namespace) -> int:
                 if not any(x.stream == "image" for f in replay.stamps for x in f.samples):
                     return fail(f"{args.recording} has no RGB images for --masks rgb")
                 spec.mask_source = "rgb"
+            if args.pose_filter:
+                f = spec.pose_filter
+                f.position_noise_m, f.rotation_noise_rad = args.pose_filter[:2]
+                if len(args.pose_filter) == 4:
+                    f.acceleration_m_s2, f.angular_acceleration_rad_s2 = args.pose_filter[2:]
             session = client.create_session(spec, session_id=args.session,
                                             tracking=args.tracking, timeout=args.timeout)
             print(f"session {session.session_id}: {len(replay.frames)} frames of "
