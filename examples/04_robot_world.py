@@ -32,6 +32,8 @@ from liquidtwin.scenes.spec import solve_with
 from liquidtwin_client import Client
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
+#: A pour counts once the source tilts past this, rad (20°).
+POUR_TILT = math.radians(20.0)
 #: Stamps start here (2026-01-01T00:00:00Z), like the generator's recordings.
 START_NS = 1_767_225_600_000_000_000
 
@@ -79,12 +81,17 @@ def main(argv=None) -> dict:
     p.add_argument("--iterations", type=int, default=None,
                    help="PBF solver iterations the robot asks of the session's model, for the same liquid "
                         "(cohesion as the scene's count applies it; default: the scene's count)")
+    p.add_argument("--top-up", action="store_true",
+                   help="pour: the MPC pours again when the twin's target ends short of the ask")
     p.add_argument("--pose-filter", action="store_true",
                    help="ask the session to filter the tracked poses (its tracker's stated noise)")
     p.add_argument("--fps", type=float, default=30.0, help="frames per s (default: %(default)s)")
     p.add_argument("--max-angle", type=float, default=2.0, help="tilt limit, rad (default: %(default)s)")
     p.add_argument("--max-rate", type=float, default=1.5, help="rate limit, rad/s (default: %(default)s)")
     p.add_argument("--seconds", type=float, default=6.0, help="longest run, s (default: %(default)s)")
+    p.add_argument("--full", action="store_true",
+                   help="pour: run all --seconds instead of stopping 1.5 s after the task is done and the "
+                        "source upright (so runs compare at one time: landed liquid can still splash out)")
     p.add_argument("--timeout", type=float, default=60.0, help="longest wait for a control, s (default: %(default)s)")
     p.add_argument("--out", help="write the result as JSON here")
     a = p.parse_args(argv)
@@ -100,19 +107,23 @@ def main(argv=None) -> dict:
     before = world.held_ml()
     frame_ns = int(round(1e9 / a.fps))
     dt = frame_ns * 1e-9
-    done_at, top, frames = None, 0.0, 0
+    done_at, top, frames, pours, tilted = None, 0.0, 0, 0, False
     t0 = time.perf_counter()
     with Client(connect=a.connect) as client:
         session, cams = open_session(client, world, a.tracking, a.iterations, a.pose_filter)
-        session.set_pour_task("source", "target", a.ml, a.max_angle, a.max_rate, controller=a.controller)
+        session.set_pour_task("source", "target", a.ml, a.max_angle, a.max_rate, controller=a.controller,
+                              top_up=a.top_up)
         bar = tqdm(range(int(a.seconds * a.fps)), desc=f"{a.controller} {a.ml:g} ml", unit="frame")
         for i in bar:
             c = exchange(session, world, cams, START_NS + i * frame_ns, a.timeout)
             frames += 1
             tilt = world.tilt("source")
+            if tilt > POUR_TILT and not tilted:
+                pours += 1
+            tilted = tilt > POUR_TILT
             if c.done and done_at is None:
                 done_at = world.t
-            if done_at is not None and world.t > done_at + 1.5 and tilt < 1e-6:
+            if not a.full and done_at is not None and world.t > done_at + 1.5 and tilt < 1e-6:
                 break
             turn = min(max(tilt + c.tilt_rate_rad_s * dt, 0.0), a.max_angle) - tilt
             pose = turn_pose(world.poses[world.setup.index("source")], c.axis_point_m, c.axis_direction, turn)
@@ -128,7 +139,7 @@ def main(argv=None) -> dict:
               "max_tilt_deg": math.degrees(top), "frames": frames, "wall_s": time.perf_counter() - t0,
               "scene": world.setup.name, "seed": a.seed, "effects": [e.as_dict() for e in world.effects],
               "model_iterations": a.iterations or world.spec().simulation.iterations, "pose_filter": a.pose_filter,
-              "server_volumes_ml": dict(VOLUMES), "true_held_ml": after}
+              "top_up": a.top_up, "pours": pours, "seconds": world.t, "server_volumes_ml": dict(VOLUMES), "true_held_ml": after}
     print(f"asked {a.ml:g} ml, poured {result['poured_ml']:.2f} ml (the server thought "
           f"{c.achieved_ml:.2f}), spilled {result['spilled_ml']:.2f} ml, {frames} frames")
     return save(result, a.out)

@@ -78,3 +78,55 @@ def test_mpc_task_pours_the_ask_closed_loop_and_checkpoints(spec):
     assert abs(c.achieved_ml - ask) < 2.0, c.achieved_ml
     vols = eng.volumes()
     assert vols["source"] + vols["target"] > 0.9 * held      # little spilled beside the pan
+
+
+class _Ctrl:
+    def __init__(self, done: bool):
+        self.done = done
+
+
+def test_top_up_pours_the_rest_once_the_first_pour_has_landed(monkeypatch):
+    """PourToVolume.top_up: the decision, with the engine and the MPC stubbed. Nothing happens
+    until the source has been upright for LAND_S; then a shortfall above max(1 ml, 10 %) starts
+    a new controller for exactly the rest, at most MAX_TOPUPS times, and anything else ends the
+    task (done only then)."""
+    from types import SimpleNamespace
+    from liquidtwin.control.pour import LAND_S
+    from liquidtwin.session._task import MAX_TOPUPS, PourTask
+    made = []
+    monkeypatch.setattr(PourTask, "_mpc", classmethod(lambda cls, eng, *a: made.append(a[-1]) or _Ctrl(False)))
+    task = pb.Task(pour=pb.Task.PourToVolume(source="source", target="target", volume_ml=8.0, top_up=True),
+                   controller="mpc")
+    vols = {"source": 40.0, "target": 2.0 + 5.5}                     # the target held 2 ml when the task was set
+    eng = SimpleNamespace(_sim_t=1.0, volumes=lambda: dict(vols))
+    pt = PourTask(task, None, 2.0, MAX_ANGLE, MAX_RATE, _Ctrl(True), ["source", "target"])
+    pt._top_up(eng, 0.5)                                            # still tilted: wait
+    pt._top_up(eng, 0.0)                                            # upright now: the clock starts
+    eng._sim_t += 0.9 * LAND_S
+    pt._top_up(eng, 0.0)
+    assert made == [] and not pt.finished
+    eng._sim_t += 0.2 * LAND_S
+    pt._top_up(eng, 0.0)                                            # landed, 2.5 ml short: pour the rest
+    assert made == [pytest.approx(2.5)] and pt.topups == 1 and not pt.ctrl.done and not pt.finished
+    pt.ctrl.done, vols["target"] = True, 2.0 + 7.2                   # 0.8 ml short: within 1 ml, finished
+    for dt in (0.0, 1.1 * LAND_S):
+        eng._sim_t += dt
+        pt._top_up(eng, 0.0)
+    assert pt.finished and made == [pytest.approx(2.5)]
+    # the limits: MAX_TOPUPS pours more, and never more than the source holds
+    for topups, source, finished in ((MAX_TOPUPS, 40.0, True), (0, 1.0, True), (0, 40.0, False)):
+        pt = PourTask(task, None, 2.0, MAX_ANGLE, MAX_RATE, _Ctrl(True), ["source", "target"])
+        pt.topups, vols["source"], vols["target"] = topups, source, 2.0 + 4.0
+        for dt in (0.0, 1.1 * LAND_S):
+            eng._sim_t += dt
+            pt._top_up(eng, 0.0)
+        assert pt.finished == finished
+
+
+def test_top_up_is_an_mpc_option(spec):
+    from liquidtwin.session import EngineError
+    eng = SessionEngine.create(pb.SessionSpec(scene=spec, tracking=pb.OPEN_LOOP))
+    eng.advance(0.0, {})
+    with pytest.raises(EngineError) as err:
+        eng.set_task(pb.Task(pour=pb.Task.PourToVolume(source="source", target="target", volume_ml=5.0, top_up=True)))
+    assert err.value.code == pb.Error.BAD_REQUEST and "top_up" in str(err.value)

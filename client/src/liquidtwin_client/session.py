@@ -187,10 +187,12 @@ class SessionHandle:
 
     def set_pour_task(self, source: str, target: str, volume_ml: float,
                       max_angle_rad: float = 0.0, max_rate_rad_s: float = 0.0,
-                      controller: str = "pid", timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
+                      controller: str = "pid", top_up: bool = False,
+                      timeout: float = RPC_TIMEOUT_S) -> SessionStatus:
         """Ask the controller to pour ``volume_ml`` (ml) from container ``source`` into
         ``target`` by tilting ``source``; limits: tilt angle (rad from upright) and rate
-        (rad/s), 0 = the server's defaults. Commands arrive on the ``control`` stream."""
+        (rad/s), 0 = the server's defaults. ``top_up`` ("mpc" only): pour again when the
+        tracked target ends short of the ask. Commands arrive on the ``control`` stream."""
         if not np.isfinite(volume_ml) or volume_ml <= 0:
             raise ValueError(f"volume_ml must be a positive number of millilitres, got {volume_ml}")
         task = Task(controller=controller)
@@ -198,6 +200,7 @@ class SessionHandle:
         task.pour.volume_ml = float(volume_ml)
         task.pour.max_angle_rad = float(max_angle_rad)
         task.pour.max_rate_rad_s = float(max_rate_rad_s)
+        task.pour.top_up = bool(top_up)
         return self._rpc("set_task", SetTaskRequest(header=self._header(), task=task), timeout)
 
     def set_catch_task(self, source: str, catcher: str, max_speed_m_s: float = 0.0, range_m: float = 0.0,

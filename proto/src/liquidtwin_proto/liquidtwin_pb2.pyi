@@ -246,18 +246,20 @@ class PoseFilter(_message.Message):
 class Task(_message.Message):
     __slots__ = ("pour", "catch_stream", "send", "controller")
     class PourToVolume(_message.Message):
-        __slots__ = ("source", "target", "volume_ml", "max_angle_rad", "max_rate_rad_s")
+        __slots__ = ("source", "target", "volume_ml", "max_angle_rad", "max_rate_rad_s", "top_up")
         SOURCE_FIELD_NUMBER: _ClassVar[int]
         TARGET_FIELD_NUMBER: _ClassVar[int]
         VOLUME_ML_FIELD_NUMBER: _ClassVar[int]
         MAX_ANGLE_RAD_FIELD_NUMBER: _ClassVar[int]
         MAX_RATE_RAD_S_FIELD_NUMBER: _ClassVar[int]
+        TOP_UP_FIELD_NUMBER: _ClassVar[int]
         source: str
         target: str
         volume_ml: float
         max_angle_rad: float
         max_rate_rad_s: float
-        def __init__(self, source: _Optional[str] = ..., target: _Optional[str] = ..., volume_ml: _Optional[float] = ..., max_angle_rad: _Optional[float] = ..., max_rate_rad_s: _Optional[float] = ...) -> None: ...
+        top_up: bool
+        def __init__(self, source: _Optional[str] = ..., target: _Optional[str] = ..., volume_ml: _Optional[float] = ..., max_angle_rad: _Optional[float] = ..., max_rate_rad_s: _Optional[float] = ..., top_up: _Optional[bool] = ...) -> None: ...
     class CatchStream(_message.Message):
         __slots__ = ("source", "catcher", "max_speed_m_s", "range_m")
         SOURCE_FIELD_NUMBER: _ClassVar[int]

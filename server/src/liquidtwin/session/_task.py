@@ -10,7 +10,7 @@ from google.protobuf import json_format
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..control import PourPID
-from ..control.pour import PourMPC
+from ..control.pour import LAND_S, UPRIGHT, PourMPC
 from ..control.tilt import PourAxis, pour_axis, tilt_from_upright, tilt_space, turn_pose
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 
@@ -22,6 +22,9 @@ CONTROLLERS = ("", "pid", "mpc")
 #: The MPC's horizon (model steps) and normalised step (rad/s per update): bench/control_pour.py's.
 MPC_HORIZON = 10
 MPC_STEP = 0.5
+#: ``PourToVolume.top_up``: pour again when short of the ask by more than the larger of these
+#: (ml, share of the ask), at most this many times.
+TOPUP_MIN_ML, TOPUP_SHARE, MAX_TOPUPS = 1.0, 0.1, 2
 
 
 def check_pour(task: pb.Task, names, containers, volumes: dict, capacities: dict) -> tuple[float, float]:
@@ -40,6 +43,8 @@ def check_pour(task: pb.Task, names, containers, volumes: dict, capacities: dict
         raise EngineError(BAD_REQUEST, f"pour source and target are the same container {p.source!r}")
     if not (math.isfinite(p.volume_ml) and p.volume_ml > 0):
         raise EngineError(BAD_REQUEST, f"pour volume_ml must be > 0 ml, got {p.volume_ml}")
+    if p.top_up and task.controller != "mpc":
+        raise EngineError(BAD_REQUEST, "top_up is an option of the 'mpc' pour controller")
     max_angle = p.max_angle_rad or DEFAULT_MAX_ANGLE
     max_rate = p.max_rate_rad_s or DEFAULT_MAX_RATE
     if not (math.isfinite(max_angle) and 0 < max_angle <= math.pi):
@@ -70,6 +75,10 @@ class PourTask:
         self.src, self.dst = names.index(task.pour.source), names.index(task.pour.target)
         self.control_frame, self.last_sim_t = -1, -1.0
         self.command = (0.0, 0.0, False)            # MPC: (angle rad, rate rad/s, done) of its last update
+        # top_up: pours so far after the first, sim time the source came back upright (-1: not
+        # upright since the last switch), the task over, ml the current controller pours
+        self.topups, self.upright_since, self.finished = 0, -1.0, False
+        self.mpc_target_ml = float(task.pour.volume_ml)
 
     @property
     def is_mpc(self) -> bool:
@@ -94,9 +103,8 @@ class PourTask:
         else:
             axis = pour_axis(eng._scene.objects[src].mesh.vertices, poses[src], poses[dst][:3])
         if task.controller == "mpc":
-            ctrl = PourMPC(eng._model, cls._space(eng, src, axis, max_angle, max_rate), axis.pivot_world(poses[src]),
-                           src, dst, eng._scene.objects[src], eng._scene.objects[dst], task.pour.volume_ml,
-                           eng._ml_per_particle, state=eng._state, horizon=MPC_HORIZON, step_size=MPC_STEP)
+            target_ml = float(state.get("mpc_target_ml", task.pour.volume_ml)) if state else task.pour.volume_ml
+            ctrl = cls._mpc(eng, src, dst, axis, max_angle, max_rate, target_ml)
             if state is not None:
                 ctrl.load_state_dict(state["mpc"])
         elif state is not None and state.get("pid"):
@@ -109,7 +117,38 @@ class PourTask:
             out.control_frame = int(state["control_frame"])
             out.last_sim_t = float(state.get("last_sim_t", -1.0))
             out.command = tuple(state.get("command", (0.0, 0.0, False)))
+            out.topups, out.upright_since = int(state.get("topups", 0)), float(state.get("upright_since", -1.0))
+            out.finished = bool(state.get("finished", False))
+            out.mpc_target_ml = float(state.get("mpc_target_ml", task.pour.volume_ml))
         return out
+
+    @classmethod
+    def _mpc(cls, eng, src: int, dst: int, axis: PourAxis, max_angle: float, max_rate: float, target_ml: float):
+        """A pour MPC for ``target_ml`` more ml in the target, counted from the engine's state now."""
+        return PourMPC(eng._model, cls._space(eng, src, axis, max_angle, max_rate),
+                       axis.pivot_world(eng._frame_poses[src]), src, dst, eng._scene.objects[src],
+                       eng._scene.objects[dst], target_ml, eng._ml_per_particle, state=eng._state,
+                       horizon=MPC_HORIZON, step_size=MPC_STEP)
+
+    def _top_up(self, eng, tilt: float) -> None:
+        """``top_up``: after a switch, once the source has been upright for ``LAND_S``, pour the
+        rest when the tracked target is short of the ask (module constants), else finish."""
+        if tilt >= UPRIGHT:
+            self.upright_since = -1.0
+            return
+        if self.upright_since < 0:
+            self.upright_since = eng._sim_t
+            return
+        if eng._sim_t - self.upright_since < LAND_S:
+            return
+        vols = eng.volumes()
+        p = self.task.pour
+        short = p.volume_ml - (vols[p.target] - self.base_ml)
+        if self.topups >= MAX_TOPUPS or short <= max(TOPUP_MIN_ML, TOPUP_SHARE * p.volume_ml) or vols[p.source] < short:
+            self.finished = True
+            return
+        self.ctrl = self._mpc(eng, self.src, self.dst, self.axis, self.max_angle, self.max_rate, short)
+        self.mpc_target_ml, self.topups, self.upright_since = short, self.topups + 1, -1.0
 
     @staticmethod
     def _space(eng, src: int, axis: PourAxis, max_angle: float, max_rate: float):
@@ -140,6 +179,8 @@ class PourTask:
     def _update_mpc(self, eng) -> tuple[float, float, bool]:
         pose = eng._frame_poses[self.src]
         tilt = tilt_from_upright(pose)
+        if self.task.pour.top_up and self.ctrl.done and not self.finished:
+            self._top_up(eng, tilt)
         elapsed = 1 if self.last_sim_t < 0 else max(1, int(round((eng._sim_t - self.last_sim_t) / eng.dt)))
         # the session's model now (a loaded extension changes it, and a refill its ml per particle)
         self.ctrl.model = self.ctrl.mpc.model = eng._model
@@ -150,7 +191,8 @@ class PourTask:
                                  self.axis.pivot_world(pose), elapsed)
         self.last_sim_t = eng._sim_t
         rate = float(u[0])
-        return min(max(tilt + rate * elapsed * eng.dt, 0.0), self.max_angle), rate, bool(self.ctrl.done)
+        done = self.finished if self.task.pour.top_up else bool(self.ctrl.done)
+        return min(max(tilt + rate * elapsed * eng.dt, 0.0), self.max_angle), rate, done
 
     def state_dict(self) -> dict:
         """Tensors, numbers and strings (the engine checkpoint's task keys)."""
@@ -159,7 +201,9 @@ class PourTask:
                 "command": [float(self.command[0]), float(self.command[1]), bool(self.command[2])],
                 "pivot_local": torch.as_tensor(self.axis.pivot_local), "axis": torch.as_tensor(self.axis.axis),
                 "pid": {} if self.is_mpc else self.ctrl.state_dict(),
-                "mpc": self.ctrl.state_dict() if self.is_mpc else {}}
+                "mpc": self.ctrl.state_dict() if self.is_mpc else {},
+                "topups": int(self.topups), "upright_since": float(self.upright_since), "finished": bool(self.finished),
+                "mpc_target_ml": float(self.mpc_target_ml)}
 
 
 def create_task(task: pb.Task, eng, *, state: dict | None = None):
