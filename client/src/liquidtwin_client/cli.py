@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from dataclasses import asdict
 from datetime import datetime, timezone
 
 from liquidtwin_proto import DEFAULT_PREFIX
+from liquidtwin_proto.pose_filter import parse_pose_filter
 
 from .connection import (CREATE_TIMEOUT_S, DEFAULT_CONNECT, TRACKING_MODES, Client,
                          ServerError)
@@ -91,15 +91,12 @@ def _add_stream(commands) -> None:
     p.set_defaults(run=_stream)
 
 
-def _pose_filter(text: str) -> list[float]:
-    """--pose-filter: 2 or 4 comma-separated finite numbers >= 0."""
+def _pose_filter(text: str):
+    """--pose-filter: a ``PoseFilter`` from M,RAD[,ACC,ANGACC]."""
     try:
-        vals = [float(v) for v in text.split(",")]
-    except ValueError:
-        vals = []
-    if len(vals) not in (2, 4) or not all(math.isfinite(v) and v >= 0 for v in vals):
-        raise argparse.ArgumentTypeError(f"expected M,RAD[,ACC,ANGACC] (numbers >= 0), got {text!r}")
-    return vals
+        return parse_pose_filter(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -142,11 +139,8 @@ def _stream(args: argparse.Namespace) -> int:
                 if not any(x.stream == "image" for f in replay.stamps for x in f.samples):
                     return fail(f"{args.recording} has no RGB images for --masks rgb")
                 spec.mask_source = "rgb"
-            if args.pose_filter:
-                f = spec.pose_filter
-                f.position_noise_m, f.rotation_noise_rad = args.pose_filter[:2]
-                if len(args.pose_filter) == 4:
-                    f.acceleration_m_s2, f.angular_acceleration_rad_s2 = args.pose_filter[2:]
+            if args.pose_filter is not None:
+                spec.pose_filter.CopyFrom(args.pose_filter)
             session = client.create_session(spec, session_id=args.session,
                                             tracking=args.tracking, timeout=args.timeout)
             print(f"session {session.session_id}: {len(replay.frames)} frames of "

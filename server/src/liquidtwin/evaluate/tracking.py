@@ -70,15 +70,13 @@ def configure(p) -> None:
 
 
 def pose_filter_arg(text: str) -> str:
-    """--pose-filter's value, checked: "auto" or 2 or 4 comma-separated numbers >= 0."""
-    if text == "auto":
-        return text
-    try:
-        vals = [float(v) for v in text.split(",")]
-    except ValueError:
-        vals = []
-    if len(vals) not in (2, 4) or not all(np.isfinite(v) and v >= 0 for v in vals):
-        raise argparse.ArgumentTypeError(f"expected 'auto' or M,RAD[,ACC,ANGACC] (numbers >= 0), got {text!r}")
+    """--pose-filter's value, checked: "auto" or M,RAD[,ACC,ANGACC] (numbers >= 0)."""
+    from liquidtwin_proto.pose_filter import parse_pose_filter
+    if text != "auto":
+        try:
+            parse_pose_filter(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(f"expected 'auto' or {e}") from None
     return text
 
 
@@ -93,9 +91,8 @@ def pose_filter_for(rec, setting: str | None):
         from ..recordings._interp import pose_noise_level
         pos, rot = np.median(pose_noise_level(np.asarray(rec.poses, float)), axis=0)
         return pb.PoseFilter(position_noise_m=float(pos), rotation_noise_rad=float(rot))
-    vals = [float(v) for v in setting.split(",")] + [0.0, 0.0]
-    return pb.PoseFilter(position_noise_m=vals[0], rotation_noise_rad=vals[1], acceleration_m_s2=vals[2],
-                         angular_acceleration_rad_s2=vals[3])
+    from liquidtwin_proto.pose_filter import parse_pose_filter
+    return parse_pose_filter(setting)
 
 
 def columns_for(trackers, masks) -> list[str]:
