@@ -197,7 +197,10 @@ def test_command_line_errors_are_clear(tmp_path):
     assert r.returncode != 0 and "--cup-scale must be in (0, 1]" in r.stderr
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--served", "30",
             "--out", str(tmp_path / "out"))
-    assert r.returncode != 0 and "--served runs the plate and catching MPCs" in r.stderr
+    assert r.returncode != 0 and "--served runs the plate and catching tasks" in r.stderr
+    r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "catching", "--served", "30", "--controller",
+            "policy", "--policy", str(tmp_path / "mine.pt"), "--out", str(tmp_path / "out"))
+    assert r.returncode != 0 and "runs the shipped catching policy" in r.stderr
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "plate", "--served", "-5",
             "--out", str(tmp_path / "out"))
     assert r.returncode != 0 and "--served takes frames per second > 0" in r.stderr
