@@ -167,25 +167,22 @@ class CatchTask:
         with torch.enable_grad():                      # the engine runs without gradients
             loss = self.ctrl.loss(parts, eng._state, t, x, elapsed)
             u = float(self.ctrl.update(eng._state, torch.tensor([x], dtype=torch.float64), space, loss, elapsed)[0])
-        self.prev = (t, eng._frame_poses[self.src].copy())
-        self.last_sim_t = t
-        pose = eng._frame_poses[self.dst].copy()
-        pose[0] = min(max(x + u * elapsed * eng.dt, self.x0 - self.range_m), self.x0 + self.range_m)
-        return pose, u, self._done(eng, loss)
+        return self._command(eng, x, u, elapsed, lambda: loss)
 
     def _policy_update(self, eng, parts, elapsed: int):
         """The learned policy's velocity from the session's particles, held until the next frame."""
         x = float(eng._frame_poses[self.dst][0])
         u = min(max(self.policy.control_at(eng._state.x, eng._frame_poses[self.dst]), -self.max_speed), self.max_speed)
+        return self._command(eng, x, u, elapsed, lambda: CatchLoss(parts, eng._model, eng._state, x))
+
+    def _command(self, eng, x: float, u: float, elapsed: int, loss):
+        """(pose at the next frame, speed, done) for velocity ``u`` from ``x``; done: the source
+        (next to) empty and, by ``loss()`` (asked only then), nothing falling."""
         self.prev, self.last_sim_t = (eng._sim_t, eng._frame_poses[self.src].copy()), eng._sim_t
         pose = eng._frame_poses[self.dst].copy()
         pose[0] = min(max(x + u * elapsed * eng.dt, self.x0 - self.range_m), self.x0 + self.range_m)
-        return pose, u, self._done(eng, CatchLoss(parts, eng._model, eng._state, x))
-
-    def _done(self, eng, loss) -> bool:
-        """The source (next to) empty and nothing falling."""
         in_src = float(held(eng._model, eng._state, self.src, self.src_obj)[0].sum()) * eng._ml_per_particle
-        return bool(in_src < FALLING_MIN * self.src_ml0 and loss.landing(eng._state) is None)
+        return pose, u, bool(in_src < FALLING_MIN * self.src_ml0 and loss().landing(eng._state) is None)
 
     def state_dict(self) -> dict:
         pose, speed, done = self.command

@@ -76,9 +76,8 @@ class PourTask:
         self.control_frame, self.last_sim_t = -1, -1.0
         self.command = (0.0, 0.0, False)            # MPC: (angle rad, rate rad/s, done) of its last update
         # top_up: pours so far after the first, sim time the source came back upright (-1: not
-        # upright since the last switch), the task over, ml the current controller pours
+        # upright since the last switch), the task over
         self.topups, self.upright_since, self.finished = 0, -1.0, False
-        self.mpc_target_ml = float(task.pour.volume_ml)
 
     @property
     def is_mpc(self) -> bool:
@@ -119,7 +118,6 @@ class PourTask:
             out.command = tuple(state.get("command", (0.0, 0.0, False)))
             out.topups, out.upright_since = int(state.get("topups", 0)), float(state.get("upright_since", -1.0))
             out.finished = bool(state.get("finished", False))
-            out.mpc_target_ml = float(state.get("mpc_target_ml", task.pour.volume_ml))
         return out
 
     @classmethod
@@ -148,7 +146,7 @@ class PourTask:
             self.finished = True
             return
         self.ctrl = self._mpc(eng, self.src, self.dst, self.axis, self.max_angle, self.max_rate, short)
-        self.mpc_target_ml, self.topups, self.upright_since = short, self.topups + 1, -1.0
+        self.topups, self.upright_since = self.topups + 1, -1.0
 
     @staticmethod
     def _space(eng, src: int, axis: PourAxis, max_angle: float, max_rate: float):
@@ -203,7 +201,7 @@ class PourTask:
                 "pid": {} if self.is_mpc else self.ctrl.state_dict(),
                 "mpc": self.ctrl.state_dict() if self.is_mpc else {},
                 "topups": int(self.topups), "upright_since": float(self.upright_since), "finished": bool(self.finished),
-                "mpc_target_ml": float(self.mpc_target_ml)}
+                "mpc_target_ml": float(self.ctrl.target_ml) if self.is_mpc else 0.0}
 
 
 def create_task(task: pb.Task, eng, *, state: dict | None = None):
