@@ -61,6 +61,8 @@ def main() -> None:
                         "(default: %(default)s)")
     p.add_argument("--series", nargs="+", default=["recorded", "smoothed", "true"],
                    choices=("recorded", "smoothed", "true"), help="pose series besides the filtered ones")
+    p.add_argument("--no-replay", action="store_true",
+                   help="pose errors only, no tracking replays (seconds for any number of --filter settings)")
     p.add_argument("--out", type=Path, help="JSON file for the results")
     args = p.parse_args()
     import torch
@@ -95,7 +97,7 @@ def main() -> None:
         row["pose_error"] = {name: pose_errors(t, np.asarray(series[name], float), true) for name in ("recorded", "smoothed")}
         row["pose_error"].update({name: pose_errors(t, filter_offline(t, recorded, msg), true)
                                   for name, msg in filters.items()})
-        for tracker in args.trackers:
+        for tracker in [] if args.no_replay else args.trackers:
             for name in args.series:
                 r = dataclasses.replace(rec, poses=np.asarray(series[name], float))
                 row[f"{tracker}/{name}"] = replay(r, engine_for(r, tracker)).mean_iou(args.min_px)

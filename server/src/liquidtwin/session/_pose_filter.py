@@ -30,10 +30,11 @@ from ..sensors.poses import _quat_exp, _quat_mul
 from .errors import BAD_REQUEST, EngineError
 
 #: Process noise when a spec gives the measurement noise only: white acceleration of this std,
-#: m/s² and rad/s². Chosen on the 18 quick tracking pours' poses against their truth
-#: (bench/tracking_pose_noise.py): of 1, 2, 5, 10 m/s² and 5, 10, 20, 40 rad/s², the pair
-#: with the smallest pose errors (position and rotation) that still halves the rotation
-#: speed's jitter; lower values smooth more but lag where the pour starts and turns.
+#: m/s² and rad/s². Chosen on the 18 quick tracking pours' poses against their truth: of
+#: 1, 2, 5, 10 m/s² and 5, 10, 20, 40 rad/s² the smallest position error (2) and rotation
+#: error (10), which cut the speed errors the walls see by 33 % and 46 %
+#: (``bench/tracking_pose_noise.py --no-replay --filter …``, README); lower values smooth the
+#: speeds more but lag where a pour starts and turns, and the pose errors grow.
 DEFAULT_ACCELERATION_M_S2 = 2.0
 DEFAULT_ANGULAR_ACCELERATION_RAD_S2 = 10.0
 #: Initial rate uncertainty (std) at an object's first pose: m/s, rad/s.
