@@ -19,6 +19,11 @@ PACKAGES := proto server client viewer
 # Test workers (pytest-xdist, whole files per worker so module fixtures run once): server
 # tests use one torch thread each, so 2 workers fill these 2 cores (make test TEST_JOBS=1: serial).
 TEST_JOBS ?= 2
+# Threads per test process, the processes the tests start included (servers, CLIs, bench
+# scripts): a child on torch's default thread pool beside two busy workers oversubscribes the
+# cores, and OpenMP's waiting threads then make it several times slower (the warp-gain CLI
+# test: 119 s in CI, 21 s alone). Tests that need 2 threads set them explicitly.
+TEST_THREADS ?= 1
 
 # Changing any of these re-runs the install. wildcard: server/ may not have its build
 # files yet, and a missing prerequisite must not break the other packages' installs.
@@ -51,7 +56,7 @@ apt:
 	fi
 
 test: venv apt
-	$(PY) -m pytest -q -n $(TEST_JOBS) --dist loadfile --durations=20 tests
+	OMP_NUM_THREADS=$(TEST_THREADS) $(PY) -m pytest -q -n $(TEST_JOBS) --dist loadfile --durations=20 tests
 
 demo: venv
 	$(VENV)/bin/liquidtwin demo $(ARGS)

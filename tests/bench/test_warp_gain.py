@@ -37,7 +37,7 @@ def test_the_old_gain_saturates_and_the_new_one_does_not(data):
 def test_cli_prints_the_paired_difference_and_writes_json(data, tmp_path):
     out = tmp_path / "sweep.json"
     p = subprocess.run([sys.executable, str(ROOT / "bench" / "warp_gain.py"), "--data", str(data), "--gains", "600,50",
-                        "--max-move", "0.25,0.5", "--frames", str(FRAMES), "--out", str(out)],
+                        "--max-move", "0.25,0.5", "--frames", "90", "--out", str(out)],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr
     assert "gain 600, cap 0.25 h: pooled IOU" in p.stdout and "better on" in p.stdout

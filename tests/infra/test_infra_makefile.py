@@ -36,7 +36,7 @@ def test_venv_installs_torch_first_and_alone_then_the_lock_then_the_packages():
 @pytest.mark.parametrize(
     "target, command",
     [
-        ("test", ".venv/bin/python -m pytest -q -n 2 --dist loadfile --durations=20 tests"),
+        ("test", "OMP_NUM_THREADS=1 .venv/bin/python -m pytest -q -n 2 --dist loadfile --durations=20 tests"),
         ("demo", ".venv/bin/liquidtwin demo"),
         ("bench", ".venv/bin/liquidtwin bench"),
         ("proto", ".venv/bin/python proto/generate.py"),
