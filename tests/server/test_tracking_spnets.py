@@ -175,6 +175,38 @@ def test_occluded_particles_are_not_moved_and_labels_map_through_the_sort():
     assert float(dp.norm(dim=1).max()) <= tracker.max_move * H_K + 1e-9
 
 
+def test_mask_noise_around_a_matched_blob_does_not_pull_it(monkeypatch):
+    """The model already draws what the camera sees, up to one-pixel slivers of ragged edge
+    and specks: the disparity field must not chase them (with the shipped net F ≈ F_d, and
+    without the opening every seen particle moved its full cap towards a sliver). A real
+    uncovered region, wider than the noise, still pulls."""
+    cam = _camera(320, 240)
+    truth = _blob((0.0, 0.05, 0.0))
+    clean = _mask(cam, truth)
+    rng = np.random.default_rng(0)
+    ragged = clean.numpy().copy()
+    edge = np.argwhere(ragged & ~np.roll(ragged, 1, axis=1))          # left edge pixels
+    for r, c in edge[rng.random(len(edge)) < 0.5]:
+        ragged[r, c - 1] = True                                        # one-pixel bulges
+    rows, cols = np.nonzero(clean.numpy())
+    for _ in range(6):                                                 # specks beside the blob
+        ragged[rng.integers(rows.min() - 10, rows.max() + 10), cols.max() + int(rng.integers(3, 12))] = True
+    obs = torch.from_numpy(ragged)
+    x = truth.double()
+    vis = visible(cam, x)
+    net = load_blend_net(dtype=torch.float64)
+    moved = solve_perception(x, cam, vis, obs, net, radius_m=R_M, max_move=0.05 * H_K).norm(dim=1)
+    monkeypatch.setattr(P, "NOISE_PX", 0.0)
+    unopened = solve_perception(x, cam, vis, obs, net, radius_m=R_M, max_move=0.05 * H_K).norm(dim=1)
+    assert float(unopened[vis].median()) > 0.5 * 0.05 * H_K           # the noise dragged the blob
+    assert float(moved.max()) < 1e-3 * 0.05 * H_K
+    monkeypatch.undo()
+    wider = obs.clone()
+    wider[rows.min():rows.min() + 8, cols.max() + 2:cols.max() + 10] = True   # an 8×8 px region the model misses
+    pulled = solve_perception(x, cam, vis, wider, net, radius_m=R_M, max_move=0.05 * H_K).norm(dim=1)
+    assert float(pulled.max()) > 0.5 * 0.05 * H_K
+
+
 def test_solver_term_pulls_a_displaced_blob_onto_the_observation():
     cam = _camera(320, 240)
     truth = _blob((0.0, 0.05, 0.0))
