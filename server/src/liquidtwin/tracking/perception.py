@@ -53,8 +53,9 @@ _RECEPTIVE_PX = 8
 #: keeps mask noise out of the disparity field F_d: uncovered liquid thinner than this does not
 #: pull. The shipped blend net puts b ≈ 0 (1e-4 on agreement, 1e-13 on disparity), so F ≈ F_d
 #: everywhere and, without the opening, a settled pool that the model already matched was
-#: spread towards its ragged edges (full 60 % hold pour: IOU 0.80 open loop, 0.62 with
-#: perception at 4.5 s).
+#: spread towards its ragged edges (full 60 % hold pour at 4.4 s: IOU 0.78 open loop, 0.59 with
+#: perception before the opening, 0.74 with it; ``python bench/tracking_frames.py REC --every 5
+#: --blend``, README).
 NOISE_PX = 5.0
 
 
