@@ -145,7 +145,13 @@ def distance_field(mask) -> torch.Tensor:
         return torch.full(mask.shape, math.inf, dtype=torch.float32, device=mask.device)
     free = (~mask).cpu().numpy().astype(np.uint8)
     d = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return torch.from_numpy(d).to(mask.device)
+    # Distances between pixel centres are square roots of integers. OpenCV's float32 answer is
+    # off by about an ulp, and *which* ulp depends on where its buffers fall in memory: the same
+    # mask gave two answers on alternate calls (opencv 5.0.0), so SPNets+perception replays of
+    # one recording parted within a process. D² rounded to its integer is exact and reproducible
+    # (an ulp of error moves D² by 2·D·ulp(D) < 0.1 up to D = 800 px).
+    d2 = np.rint(d.astype(np.float64) ** 2)
+    return torch.from_numpy(np.sqrt(d2).astype(np.float32)).to(mask.device)
 
 
 _DIFF = torch.tensor([[[[0.0, 0.0, 0.0], [0.25, 0.0, -0.25], [0.0, 0.0, 0.0]]],
@@ -159,7 +165,7 @@ def nearest_vectors(mask, dtype=torch.float32) -> torch.Tensor:
     d = distance_field(mask)
     if not bool(torch.isfinite(d).all()):
         return torch.zeros((2,) + tuple(d.shape), dtype=dtype, device=d.device)
-    d2 = (d.to(torch.float64) ** 2)[None, None]
+    d2 = torch.round(d.to(torch.float64) ** 2)[None, None]      # integers (distance_field)
     d2 = F.pad(d2, (1, 1, 1, 1), mode="replicate")
     # conv2d correlates: [¼, 0, −¼] gives ¼(D²(p−1) − D²(p+1)) = −½ ∂D²/∂u (central difference).
     g = F.conv2d(d2, _DIFF.to(d2))[0]
