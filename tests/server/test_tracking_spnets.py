@@ -5,7 +5,6 @@ onto the observation by the solver term, the shipped weights, and sessions on ge
 
 import dataclasses
 import io
-import math
 
 import numpy as np
 import pytest
