@@ -29,7 +29,8 @@ squared distance field bilinearly, the second uses at most 1,024 sampled liquid 
 ``--mask-noise``: the tracker is given masks with perception noise (levels drawn by
 ``MaskNoise.sample``), the loss takes the true ones. Tried at stop 44 because the shipped net
 puts b ≈ 0 everywhere (it always follows the disparity field F_d): with the noise too, the
-trained net puts b ≤ 1e-3 everywhere (400 s; stage-1 loss 398 → 237 px², gain 0.31). Under
+trained net puts b ≤ 1e-3 on uniform disparity images of −1, 0 and +1, a blob and a speck (an
+uncommitted check; 400 s; stage-1 loss 398 → 237 px², gain 0.31). Under
 the per-iteration cap ``--max-move`` only a move's direction counts, and the coverage term
 always prefers the one towards uncovered liquid; the noise is kept out of F_d by the
 tracker's opening instead (``perception.NOISE_PX``).
