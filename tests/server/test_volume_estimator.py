@@ -106,6 +106,32 @@ def test_tilted_surface_height_holds_the_volume(tapered):
     assert not np.allclose(h, LevelTable.create(tapered, vols).upright + pose[1], atol=1e-3)
 
 
+def test_surface_offset_lowers_the_drawn_surface_but_not_the_thinnest_layer(straight, tapered, oblique):
+    """In a straight cup the surface of v lowered by d is the surface of v − A·d (A: the
+    cross-section), upright and tilted; volumes in the thinnest layer keep its surface."""
+    area_ml_per_m = straight.capacity_ml / (straight.rim_height - straight.floor_height)
+    d = 0.004
+    vols = np.array([0.0, 40.0, 120.0, 300.0])
+    lowered = LevelTable.create(straight, vols, surface_offset=d)
+    shifted = np.r_[0.0, vols[1:] - area_ml_per_m * d]        # 40 ml → 24.6 ml, …
+    np.testing.assert_allclose(lowered.heights(UPRIGHT)[1:], LevelTable.create(straight, shifted).heights(UPRIGHT)[1:],
+                               atol=1e-6)
+    q = quat_from_axis_angle(torch.tensor([0.0, 0, 1]), torch.tensor(0.3)).numpy()
+    pose = np.r_[0.0, 0.1, 0.0, q]
+    np.testing.assert_allclose(lowered.heights(pose), LevelTable.create(straight, vols).heights(pose) - d, atol=1e-9)
+    pool = LevelTable.create(straight, vols, min_depth=0.006, surface_offset=d)
+    base = LevelTable.create(straight, vols, min_depth=0.006)
+    hp, hb = pool.heights(UPRIGHT), base.heights(UPRIGHT)
+    assert hp[0] == hb[0]                                     # the thinnest layer stays
+    np.testing.assert_allclose(hp[2:], np.maximum(hb[2:] - d, hb[0]), atol=0)
+    table, cam, e = oblique                                   # masks: nested, smaller, same interior
+    e_low = expected_masks(LevelTable.create(tapered, table.volumes_ml, surface_offset=d), UPRIGHT, cam, stride=2)
+    assert (e_low.interior == e.interior).all() and not (e_low.liquid & ~e.liquid).any()
+    assert e_low.liquid.sum() < e.liquid.sum()
+    with pytest.raises(ValueError, match="surface_offset"):
+        LevelTable.create(straight, vols, surface_offset=-1e-3)
+
+
 @pytest.mark.parametrize("k_true", [3, 12, 20])
 def test_likelihood_peaks_at_the_true_volume_with_10_percent_flipped(oblique, k_true):
     _, _, e = oblique

@@ -102,14 +102,16 @@ class MaskVolumes:
     transition is learned per mask frame). The filter reads only masks, poses and the camera.
     """
 
-    def __init__(self, names, objects, containers, occluders, total_ml: float, spacing: float, fills: dict):
-        from ..volumes import MIN_DEPTH_SPACINGS, LevelTable, VolumeFilter, scaled_transition
+    def __init__(self, names, objects, containers, occluders, total_ml: float, spacing: float, fills: dict,
+                 surface_offset_spacings: float | None = None):
+        from ..volumes import MIN_DEPTH_SPACINGS, SURFACE_OFFSET_SPACINGS, LevelTable, VolumeFilter, scaled_transition
+        off = (SURFACE_OFFSET_SPACINGS if surface_offset_spacings is None else float(surface_offset_spacings)) * spacing
         self._names = tuple(names)
         self._tables, self._filters, self._prior = {}, {}, {}
         for name in containers:
             obj = objects[self._names.index(name)]
             bins, T = scaled_transition(total_ml, obj.capacity_ml)
-            self._tables[name] = LevelTable.create(obj, bins, min_depth=MIN_DEPTH_SPACINGS * spacing)
+            self._tables[name] = LevelTable.create(obj, bins, min_depth=MIN_DEPTH_SPACINGS * spacing, surface_offset=off)
             self._filters[name] = VolumeFilter(bins, T)
             p = np.zeros(len(bins))
             p[int(np.argmin(np.abs(bins - float(fills.get(name, 0.0)))))] = 1.0

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .expected import MIN_DEPTH_SPACINGS, LevelTable, downsample_mask, expected_masks, quat_matrix
+from .expected import MIN_DEPTH_SPACINGS, SURFACE_OFFSET_SPACINGS, LevelTable, downsample_mask, expected_masks, quat_matrix
 from .hmm import VolumeFilter, default_transition, log_likelihood
 
 
@@ -82,6 +82,8 @@ def main(argv=None) -> None:
                     help="top bin, ml (default: 1.2 × the scene's fills, at most the capacity)")
     ap.add_argument("--min-depth", type=float, default=None,
                     help="thinnest liquid layer, m (default: MIN_DEPTH_SPACINGS × the scene's particle spacing)")
+    ap.add_argument("--surface-offset", type=float, default=None,
+                    help="visible surface below the level holding v, m (default: SURFACE_OFFSET_SPACINGS × the spacing)")
     a = ap.parse_args(argv)
     rec = read_recording(a.recording, images=False)
     items = scene_objects(rec.spec, base_dir=a.recording.parent)
@@ -96,7 +98,9 @@ def main(argv=None) -> None:
     fills = sum(f.volume_ml for f in rec.spec.fills)
     top = min(model.capacity_ml, 1.2 * fills if fills > 0 else model.capacity_ml) if a.max_ml is None else a.max_ml
     depth = MIN_DEPTH_SPACINGS * simulation_settings(rec.spec)["spacing"] if a.min_depth is None else a.min_depth
-    table = LevelTable.create(model, np.linspace(0.0, top, a.bins), min_depth=depth)
+    spacing = simulation_settings(rec.spec)["spacing"]
+    offset = SURFACE_OFFSET_SPACINGS * spacing if a.surface_offset is None else a.surface_offset
+    table = LevelTable.create(model, np.linspace(0.0, top, a.bins), min_depth=depth, surface_offset=offset)
     occ = [k for k, (_, o, _) in enumerate(items) if k != ti and o.cavity is not None]
     med, _ = estimate_series(table, camera, poses[:, ti], masks, a.stride,
                              occluders=lambda f: [(items[k][1].mesh, poses[f, k]) for k in occ])

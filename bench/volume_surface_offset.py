@@ -1,0 +1,78 @@
+"""Calibrate ``liquidtwin.volumes.SURFACE_OFFSET_SPACINGS`` (how far below the level holding v
+the liquid's visible surface lies) on training pours.
+
+    OMP_NUM_THREADS=1 python bench/volume_surface_offset.py REC.mcap [REC.mcap …] [--offsets 0 0.2 0.4]
+
+Runs the session's mask-model volume filter (``session._volumes.MaskVolumes``, exactly as a
+session runs it: recorded poses and masks, the other objects occluding) over each recording
+once per offset (in particle spacings) and prints the target's RMSE, ml, over the pour frames
+(from the first with the source tilted > ``evaluate.volume.POUR_TILT_RAD``) and over all mask
+frames, against the truth sidecar (training data: use recordings that are not the
+evaluation's, e.g. base seed 50000). No simulation runs: only masks, poses and ray casts.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+
+def rmse_per_offset(path: Path, offsets) -> dict:
+    """{offset: (pour RMSE, all-frames RMSE)} of the target's mask-model volume, ml."""
+    from liquidtwin.camera import Camera
+    from liquidtwin.evaluate.replay import engine_for
+    from liquidtwin.evaluate.volume import POUR_TILT_RAD, _tilt, true_volumes
+    from liquidtwin.recordings import read_recording
+    from liquidtwin.session._volumes import MaskVolumes
+    rec = read_recording(path, images=False)
+    eng = engine_for(rec)
+    scene = eng._scene                                       # read only: objects, containers, spacing
+    cam_name = next(iter(rec.masks))
+    info = rec.cameras[cam_name]
+    cam = Camera.from_calibration(info.K, info.D, info.width, info.height, info.pose)
+    stamps, masks = rec.masks[cam_name]
+    truth = np.asarray(true_volumes(path, eng, stamps)["target"], float)
+    si = scene.names.index("source")
+    poses = [rec.poses_at(int(t)) for t in stamps]
+    tilt = np.array([_tilt(p[si]) for p in poses])
+    start = int(np.argmax(tilt > POUR_TILT_RAD)) if (tilt > POUR_TILT_RAD).any() else len(tilt)
+    total = scene.ml_per_particle * int(scene.state.x.shape[0])
+    fills = {f.container: float(f.volume_ml) for f in rec.spec.fills}
+    out = {}
+    for off in offsets:
+        mv = MaskVolumes(scene.names, scene.objects, scene.containers, scene.occluders, total,
+                         float(scene.model.spacing), fills, surface_offset_spacings=off)
+        est = []
+        for f, (m, p) in enumerate(zip(masks, poses)):
+            mv.update(f, cam, np.asarray(m, bool), np.asarray(p, float))
+            v = mv.volumes()["target"]
+            est.append(fills.get("target", 0.0) if v is None else v)
+        err = np.asarray(est) - truth
+        out[off] = (float(np.sqrt(np.mean(err[start:] ** 2))) if start < len(err) else float("nan"),
+                    float(np.sqrt(np.mean(err ** 2))))
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("recordings", nargs="+", type=Path)
+    p.add_argument("--offsets", nargs="+", type=float, default=[0.0, 0.1, 0.2, 0.3, 0.4, 0.5],
+                   help="offsets to try, particle spacings (default: %(default)s)")
+    a = p.parse_args()
+    if any(o < 0 for o in a.offsets):
+        p.error("offsets must be >= 0")
+    rows = {}
+    for path in a.recordings:
+        rows[path.name] = rmse_per_offset(path, a.offsets)
+        print(path.name, "  ".join(f"{o:g}: {r[0]:.2f}/{r[1]:.2f}" for o, r in rows[path.name].items()), flush=True)
+    print("target RMSE, ml, during pours / all frames; pooled over recordings (root mean of the squares):")
+    for o in a.offsets:
+        pour = np.sqrt(np.nanmean([r[o][0] ** 2 for r in rows.values()]))
+        every = np.sqrt(np.mean([r[o][1] ** 2 for r in rows.values()]))
+        print(f"offset {o:4.2f} spacings: {pour:7.2f} / {every:7.2f}")
+
+
+if __name__ == "__main__":
+    main()
