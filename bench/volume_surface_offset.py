@@ -6,9 +6,9 @@ the liquid's visible surface lies) on training pours.
 Runs the session's mask-model volume filter (``session._volumes.MaskVolumes``, exactly as a
 session runs it: recorded poses and masks, the other objects occluding) over each recording
 once per offset (in particle spacings) and prints the target's RMSE, ml, over the pour frames
-(from the first with the source tilted > ``evaluate.volume.POUR_TILT_RAD``) and over all mask
-frames, against the truth sidecar (training data: use recordings that are not the
-evaluation's, e.g. base seed 50000). No simulation runs: only masks, poses and ray casts.
+(``evaluate.volume.pour_from``) and over all mask frames, against the truth sidecar (training
+data: use recordings that are not the evaluation's, e.g. base seed 50000). No simulation
+runs: only masks, poses and ray casts.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ def rmse_per_offset(path: Path, offsets) -> dict:
     """{offset: (pour RMSE, all-frames RMSE)} of the target's mask-model volume, ml."""
     from liquidtwin.camera import Camera
     from liquidtwin.evaluate.replay import engine_for
-    from liquidtwin.evaluate.volume import POUR_TILT_RAD, _tilt, true_volumes
+    from liquidtwin.evaluate.volume import pour_from, true_volumes
     from liquidtwin.recordings import read_recording
     from liquidtwin.session._volumes import MaskVolumes
     rec = read_recording(path, images=False)
@@ -34,10 +34,8 @@ def rmse_per_offset(path: Path, offsets) -> dict:
     cam = Camera.from_calibration(info.K, info.D, info.width, info.height, info.pose)
     stamps, masks = rec.masks[cam_name]
     truth = np.asarray(true_volumes(path, eng, stamps)["target"], float)
-    si = scene.names.index("source")
     poses = [rec.poses_at(int(t)) for t in stamps]
-    tilt = np.array([_tilt(p[si]) for p in poses])
-    start = int(np.argmax(tilt > POUR_TILT_RAD)) if (tilt > POUR_TILT_RAD).any() else len(tilt)
+    start = pour_from(rec, stamps)
     total = scene.ml_per_particle * int(scene.state.x.shape[0])
     fills = {f.container: float(f.volume_ml) for f in rec.spec.fills}
     out = {}

@@ -30,7 +30,7 @@ def test_offset_zero_is_the_benchmarks_mask_column_and_quick_pools_ignore_the_of
     assert got[0.5] == got[0.0]
 
 
-def test_negative_offsets_are_refused(quick_pour):
-    sys.argv = ["volume_surface_offset.py", str(quick_pour), "--offsets", "-0.1"]
+def test_negative_offsets_are_refused(quick_pour, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["volume_surface_offset.py", str(quick_pour), "--offsets", "-0.1"])
     with pytest.raises(SystemExit):
         main()

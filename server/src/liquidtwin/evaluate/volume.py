@@ -72,6 +72,15 @@ def _tilt(pose) -> float:
     return math.acos(min(1.0, max(-1.0, 1.0 - 2.0 * (x * x + z * z))))
 
 
+def pour_from(rec, stamps) -> int:
+    """Index of the first of ``stamps`` (ns) at which the recorded source is tilted more than
+    :data:`POUR_TILT_RAD` (``len(stamps)`` if never, or if the scene has no source)."""
+    if "source" not in rec.object_names:
+        return len(stamps)
+    src = rec.object_names.index("source")
+    return next((i for i, s in enumerate(stamps) if _tilt(rec.poses_at(int(s))[src]) > POUR_TILT_RAD), len(stamps))
+
+
 def evaluate_case(path: Path, trackers, *, frames: int | None = None) -> dict:
     """{"t_s", "truth", "pour_from", "particles": {tracker: {container: [...]}}, "mask": {...},
     "mask_ms"} for one recording."""
@@ -110,12 +119,7 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None) -> dict:
     if engine is None:
         raise SystemExit(f"none of the trackers {', '.join(trackers)} can run here")
     truth = true_volumes(path, engine, stamps)
-    src = rec.object_names.index("source") if "source" in rec.object_names else None
-    pour_from = len(stamps)
-    if src is not None:
-        tilts = [_tilt(rec.poses_at(s)[src]) for s in stamps]
-        pour_from = next((i for i, a in enumerate(tilts) if a > POUR_TILT_RAD), len(stamps))
-    return {"t_s": t_s, "truth": {n: v.tolist() for n, v in truth.items()}, "pour_from": pour_from,
+    return {"t_s": t_s, "truth": {n: v.tolist() for n, v in truth.items()}, "pour_from": pour_from(rec, stamps),
             "particles": series, "mask": mask, "mask_ms": mask_ms}
 
 

@@ -137,12 +137,11 @@ def _check_mask(mask, what: str) -> torch.Tensor:
     return mask if mask.dtype == torch.bool else mask != 0
 
 
-def distance_field(mask) -> torch.Tensor:
-    """(H, W) float32 Euclidean distance, px, from each pixel centre to the nearest True pixel
-    of ``mask`` (H, W) bool (0 on it); +inf everywhere when the mask is empty."""
-    mask = _check_mask(mask, "mask")
+def _squared_distance(mask: torch.Tensor) -> torch.Tensor | None:
+    """(H, W) float64 squared Euclidean distance, px², from each pixel centre to the nearest True
+    pixel of ``mask`` (H, W) bool — exact integers; None when the mask is empty."""
     if not bool(mask.any()):
-        return torch.full(mask.shape, math.inf, dtype=torch.float32, device=mask.device)
+        return None
     free = (~mask).cpu().numpy().astype(np.uint8)
     d = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     # Distances between pixel centres are square roots of integers. OpenCV's float32 answer is
@@ -150,8 +149,17 @@ def distance_field(mask) -> torch.Tensor:
     # mask gave two answers on alternate calls (opencv 5.0.0), so SPNets+perception replays of
     # one recording parted within a process. D² rounded to its integer is exact and reproducible
     # (an ulp of error moves D² by 2·D·ulp(D) < 0.1 up to D = 800 px).
-    d2 = np.rint(d.astype(np.float64) ** 2)
-    return torch.from_numpy(np.sqrt(d2).astype(np.float32)).to(mask.device)
+    return torch.from_numpy(np.rint(d.astype(np.float64) ** 2)).to(mask.device)
+
+
+def distance_field(mask) -> torch.Tensor:
+    """(H, W) float32 Euclidean distance, px, from each pixel centre to the nearest True pixel
+    of ``mask`` (H, W) bool (0 on it); +inf everywhere when the mask is empty."""
+    mask = _check_mask(mask, "mask")
+    d2 = _squared_distance(mask)
+    if d2 is None:
+        return torch.full(mask.shape, math.inf, dtype=torch.float32, device=mask.device)
+    return d2.sqrt().to(torch.float32)
 
 
 _DIFF = torch.tensor([[[[0.0, 0.0, 0.0], [0.25, 0.0, -0.25], [0.0, 0.0, 0.0]]],
@@ -162,11 +170,11 @@ def nearest_vectors(mask, dtype=torch.float32) -> torch.Tensor:
     """(2, H, W) (du, dv) px from each pixel to its nearest True pixel of ``mask`` (H, W):
     F = −½ ∇(D²) with a fixed central-difference convolution (replicate-padded border) of
     the squared distance field. Zero when the mask is empty."""
-    d = distance_field(mask)
-    if not bool(torch.isfinite(d).all()):
-        return torch.zeros((2,) + tuple(d.shape), dtype=dtype, device=d.device)
-    d2 = torch.round(d.to(torch.float64) ** 2)[None, None]      # integers (distance_field)
-    d2 = F.pad(d2, (1, 1, 1, 1), mode="replicate")
+    mask = _check_mask(mask, "mask")
+    d2 = _squared_distance(mask)
+    if d2 is None:
+        return torch.zeros((2,) + tuple(mask.shape), dtype=dtype, device=mask.device)
+    d2 = F.pad(d2[None, None], (1, 1, 1, 1), mode="replicate")
     # conv2d correlates: [¼, 0, −¼] gives ¼(D²(p−1) − D²(p+1)) = −½ ∂D²/∂u (central difference).
     g = F.conv2d(d2, _DIFF.to(d2))[0]
     return g.to(dtype)

@@ -97,8 +97,8 @@ def main(argv=None) -> None:
     poses = np.stack([rec.poses_at(int(t)) for t in stamps])          # (M, n, 7)
     fills = sum(f.volume_ml for f in rec.spec.fills)
     top = min(model.capacity_ml, 1.2 * fills if fills > 0 else model.capacity_ml) if a.max_ml is None else a.max_ml
-    depth = MIN_DEPTH_SPACINGS * simulation_settings(rec.spec)["spacing"] if a.min_depth is None else a.min_depth
     spacing = simulation_settings(rec.spec)["spacing"]
+    depth = MIN_DEPTH_SPACINGS * spacing if a.min_depth is None else a.min_depth
     offset = SURFACE_OFFSET_SPACINGS * spacing if a.surface_offset is None else a.surface_offset
     table = LevelTable.create(model, np.linspace(0.0, top, a.bins), min_depth=depth, surface_offset=offset)
     occ = [k for k, (_, o, _) in enumerate(items) if k != ti and o.cavity is not None]

@@ -137,9 +137,9 @@ class LevelTable:
         h = self._level_heights(pose, fast)
         if self.surface_offset <= 0:
             return h
-        # The thinnest layer's surface (bins at or below pool_ml share it) is not lowered.
+        # The thinnest layer's surface (the lowest; bins at or below pool_ml share it) is not lowered.
         floor = h[0] if self.pool_ml > 0 and self.volumes_ml[0] <= self.pool_ml else -np.inf
-        return np.maximum(h - self.surface_offset, np.minimum(h, floor))
+        return np.maximum(h - self.surface_offset, floor)
 
     def _level_heights(self, pose, fast: bool) -> np.ndarray:
         """(K,) world heights y (m) of the planes that hold :attr:`surface_ml` (:meth:`heights`
