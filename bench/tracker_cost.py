@@ -31,6 +31,7 @@ import torch
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from liquidtwin.camera import Camera, model_mask, visible
+from liquidtwin.evaluate.replay import MODES
 from liquidtwin.session import SessionEngine
 
 HISTORY = Path(__file__).parent / "history.jsonl"
@@ -76,7 +77,8 @@ def fill_ml(n: int, tolerance: float = 0.03, rounds: int = 4) -> float:
     return ml
 
 
-TRACKERS = {"warp_field": pb.WARP_FIELD, "map_filter": pb.MAP_FILTER, "spnets_perception": pb.SPNETS_PERCEPTION}
+#: Trackers that can be timed after open loop (the names of ``liquidtwin evaluate``'s ``--trackers``).
+TRACKERS = sorted(set(MODES) - {"open_loop"})
 
 
 def run(n: int, frames: int, trackers=("warp_field", "map_filter")) -> list[dict]:
@@ -85,7 +87,7 @@ def run(n: int, frames: int, trackers=("warp_field", "map_filter")) -> list[dict
     out = []
     open_step = open_ms = None
     ml = fill_ml(n)
-    for mode in (pb.OPEN_LOOP, *(TRACKERS[t] for t in trackers)):
+    for mode in (pb.OPEN_LOOP, *(MODES[t] for t in trackers)):
         eng = SessionEngine.create(_spec(n, mode, ml))
         eng.set_camera("cam", K=cam.K.numpy(), width=640, height=480, pose=pose)
         step_ms, corr_ms, total, tracker_ms = [], [], [], []
@@ -127,7 +129,7 @@ def main(argv=None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--particles", type=int, nargs="+", default=[4000, 8000])
     p.add_argument("--frames", type=int, default=15)
-    p.add_argument("--trackers", nargs="+", choices=sorted(TRACKERS), default=["warp_field", "map_filter"],
+    p.add_argument("--trackers", nargs="+", choices=TRACKERS, default=["warp_field", "map_filter"],
                    help="trackers timed after open loop (default: %(default)s)")
     p.add_argument("--no-history", action="store_true", help="do not append to bench/history.jsonl")
     args = p.parse_args(argv)
