@@ -16,6 +16,12 @@ every tracker's IOU in ``liquidtwin evaluate tracking`` and the numbers that
 ``--data DIR`` measures instead every recording in DIR that has a truth sidecar (e.g. the
 benchmark recordings ``liquidtwin evaluate tracking --data DIR`` generated) and prints the
 mean over them.
+
+``--radius-scales S …`` also draws the spheres at S × their radius (px, after the engine's
+rounding to half pixels), as the fill bank's ``radius_scale`` does, and prints for each the
+pixels drawn per observed pixel pooled over every frame of every recording: the
+calibration of ``inference.likelihood.FILL_RADIUS_SCALE`` (pick the scale whose drawing
+covers as many pixels as the camera saw, on recordings that are not the benchmark's).
 """
 
 from __future__ import annotations
@@ -55,19 +61,22 @@ def measure(quick: bool, tmp: Path, min_px: int = 50) -> dict:
                 **measure_recording(path, min_px))
 
 
-def measure_recording(path: Path, min_px: int = 50) -> dict:
-    """The ceilings of one recording with a truth sidecar (``path.with_suffix('.truth.npz')``)."""
+def measure_recording(path: Path, min_px: int = 50, scales=()) -> dict:
+    """The ceilings of one recording with a truth sidecar (``path.with_suffix('.truth.npz')``);
+    ``scales``: also the spheres drawn at these radius scales (labels ``spheres_xS``)."""
     rec = read_recording(path, images=False)
     eng = engine_for(rec, "open_loop")
     cam = next(iter(rec.masks))
     out = {}
-    for label, disc in (("discs_5px", 5.0), ("spheres", None)):
-        s = ceiling_series(rec, path, eng, cam, disc_px=disc)
+    draws = [("discs_5px", 5.0, 1.0), ("spheres", None, 1.0)] + [(f"spheres_x{s:g}", None, s) for s in scales]
+    for label, disc, scale in draws:
+        s = ceiling_series(rec, path, eng, cam, disc_px=disc, radius_scale=scale)
         keep = [k for k, n in enumerate(s["observed_px"]) if n >= min_px]
         out[label] = round(float(np.mean([s["iou"][k] for k in keep])), 4) if keep else None
         # > 1: the drawing covers more pixels than the camera saw liquid on
         out[f"{label}_drawn_over_observed_px"] = round(sum(s["model_px"][k] for k in keep)
                                                         / max(sum(s["observed_px"][k] for k in keep), 1), 3)
+        out[f"{label}_px"] = [sum(s["model_px"][k] for k in keep), sum(s["observed_px"][k] for k in keep)]
         out["frames"] = len(keep)
     c = rec.cameras[cam]
     return dict(what="mask_ceiling", recording=Path(path).name, width=int(c.width), height=int(c.height),
@@ -81,6 +90,9 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--no-history", action="store_true", help="do not append to bench/history.jsonl")
     p.add_argument("--data", type=Path, default=None, metavar="DIR",
                    help="measure every recording in DIR that has a truth sidecar instead of generating two")
+    p.add_argument("--radius-scales", type=float, nargs="+", default=[], metavar="S",
+                   help="with --data: also draw the spheres at S x their radius and print the pooled pixels "
+                        "drawn per observed pixel for each S")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     records = []
@@ -89,7 +101,10 @@ def main(argv=None) -> list[dict]:
         if not paths:
             raise SystemExit(f"no recordings with a truth sidecar (NAME.truth.npz) in {args.data}")
         for q in paths:
-            r = measure_recording(q)
+            if not len(read_recording(q, images=False).spec.fills):
+                print(f"{q.name}: an empty source (no liquid to draw), skipped", flush=True)
+                continue
+            r = measure_recording(q, scales=args.radius_scales)
             if r["mean_iou"]["frames"] == 0:
                 print(f"{q.name}: no frame with >= {r['min_px']} observed liquid px, skipped", flush=True)
                 continue
@@ -98,6 +113,10 @@ def main(argv=None) -> list[dict]:
         for key in ("discs_5px", "spheres", "discs_5px_drawn_over_observed_px", "spheres_drawn_over_observed_px"):
             print(f"mean over {len(records)} recordings, {key}: "
                   f"{np.mean([r['mean_iou'][key] for r in records]):.3f}", flush=True)
+        for label in ["spheres"] + [f"spheres_x{s:g}" for s in args.radius_scales]:
+            drawn, seen = (sum(r["mean_iou"][f"{label}_px"][i] for r in records) for i in (0, 1))
+            print(f"pooled over {len(records)} recordings, {label}: {drawn / max(seen, 1):.3f} px drawn per observed "
+                  f"px, mean IOU {np.mean([r['mean_iou'][label] for r in records]):.3f}", flush=True)
     else:
         with tempfile.TemporaryDirectory() as tmp:
             for quick in (True,) if args.no_full else (True, False):

@@ -160,6 +160,27 @@ def pour(tmp_path_factory):
     return out
 
 
+def test_bank_draws_particles_at_its_radius_scale():
+    # One particle 0.5 m in front of a camera, nothing observed: the disagreement (exact pixels)
+    # is the disc the bank draws, whose area is π (fx · s · r / depth)² for radius scale s.
+    from liquidtwin.camera import Camera
+    from liquidtwin.inference import Hypothesis
+    from liquidtwin.sim import FluidModel, particle_radius
+    model = FluidModel.create(0.02, objects=[])
+    cam = Camera.look_at((0.0, 0.0, 0.5), (0.0, 0.0, 0.0), width=320, height=240, fx=400.0)
+    hyp = Hypothesis("one", (), torch.zeros(1, 3), torch.zeros(1, 3))
+    r_m = particle_radius(float(model.spacing))
+    empty = torch.zeros(240, 320, dtype=torch.bool)
+    for s in (1.0, 0.6):
+        bank = Bank(model, [hyp], (), radius_scale=s)
+        bank.start(torch.zeros(0, 7))
+        drawn = float(bank.observe(cam, empty)[0])
+        disc = math.pi * (400.0 * s * r_m / 0.5) ** 2
+        assert abs(drawn - disc) < 0.1 * disc + 4, (s, drawn, disc)
+    with pytest.raises(ValueError, match="radius scale"):
+        Bank(model, [hyp], (), radius_scale=0.0)
+
+
 def test_batched_bank_equals_sequential_runs(pour):
     # float64, so that the 2 m offset costs no precision: float32 rounds positions 2 m out to
     # 0.24 µm, and a pouring splash amplifies any rounding difference to mm within ~0.3 s.
@@ -256,13 +277,16 @@ def test_bad_requests_fail_clearly(pour):
         infer_fill(rec, tracking="telepathy", fractions=(0.3,))
     with pytest.raises(ValueError, match="slack"):
         infer_fill(rec, slack_px=-2.0)
+    with pytest.raises(ValueError, match="radius scale"):
+        infer_fill(rec, radius_scale=float("nan"))
     torch.set_num_threads(1)
 
 
 def test_evaluate_rejects_a_bad_likelihood_before_generating(tmp_path):
     from liquidtwin.cli import main
     for kind, opt, val, says in (("fill", "--slack", "-1", "--delta/--slack"), ("blockage", "--delta", "0.4", "--delta/--slack"),
-                                 ("fill", "--slack", "nan", "--delta/--slack"), ("blockage", "--partial", "1", "--partial")):
+                                 ("fill", "--slack", "nan", "--delta/--slack"), ("blockage", "--partial", "1", "--partial"),
+                                 ("fill", "--radius-scale", "-0.5", "--radius-scale")):
         with pytest.raises(SystemExit, match=says):
             main(["evaluate", kind, "--quick", opt, val, "--data", str(tmp_path / "d"), "--out", str(tmp_path / "o")])
     assert not (tmp_path / "d").exists()                  # nothing was generated

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..inference.likelihood import FILL_BLUR_PX
+from ..inference.likelihood import FILL_BLUR_PX, FILL_RADIUS_SCALE
 from .benchmark import ensure
 from .cli import (CASES_HELP, add_common, add_likelihood_options, add_model_options, case_range,
                   likelihood_options, save_results, selected_cases, with_model_options)
@@ -44,6 +44,9 @@ def configure(p) -> None:
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
     add_likelihood_options(p, slack=0.0, blur=FILL_BLUR_PX)
+    p.add_argument("--radius-scale", type=float, default=FILL_RADIUS_SCALE, metavar="S",
+                   help="draw the hypotheses' particles as spheres of S x their physical radius "
+                        f"(default: {FILL_RADIUS_SCALE:g}; 1: as sessions draw them)")
 
 
 def run(args) -> int:
@@ -52,6 +55,11 @@ def run(args) -> int:
     from ..inference import fill_name, infer_fill
     from ..recordings import read_recording
     delta, slack, blur = likelihood_options(args)
+    from ..inference.likelihood import check_radius_scale
+    try:
+        check_radius_scale(args.radius_scale)
+    except ValueError as e:
+        raise SystemExit(f"--radius-scale: {e}") from None
     case_list = selected_cases(args, sources=tuple(args.sources), fills=FILLS, kinds=tuple(args.kinds))
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     scale = QUICK_FILL if args.quick else 1.0
@@ -63,7 +71,8 @@ def run(args) -> int:
         row = {"case": case.as_dict(), "recording": str(path), "truth": truth, "modes": {}}
         for mode in args.trackers:
             post = infer_fill(rec, fractions=FILLS, tracking=mode, scale=scale, frames=args.frames, delta=delta,
-                              slack_px=slack, blur_px=blur, batched=args.batched == "yes")
+                              slack_px=slack, blur_px=blur, batched=args.batched == "yes",
+                              radius_scale=args.radius_scale)
             k = post.names.index(truth)
             row["modes"][mode] = post.as_dict() | {"correct": post.best == truth, "p_truth": float(post.probability[k])}
         results.append(row)
@@ -74,7 +83,7 @@ def run(args) -> int:
     text = format_table(results, args.trackers, names, summary, args.quick, delta, slack, blur, args)
     print(text)
     doc = {"kind": "fill", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed, "delta": delta,
-           "slack_px": slack, "blur_px": blur,
+           "slack_px": slack, "blur_px": blur, "radius_scale": args.radius_scale,
            "iterations": args.iterations,
            "scale": scale, "frames": args.frames, "trackers": list(args.trackers), "hypotheses": names,
            "summary": summary, "table_text": text, "cases": results}
@@ -103,7 +112,8 @@ def format_table(results, modes, names, summary, quick, delta, slack, blur, args
         lines.append(f"mean probability on the truth {s['mean_p_truth']:.3f}; truth ranked first "
                      f"{s['ranked_first']}/{s['sequences']}")
     lines.append(f"{'quick' if quick else 'full'} benchmark, trials {args.trials}, base seed {args.seed}, "
-                 f"delta = {delta}, slack {slack:g} px, blur {blur:g} px at 640x480"
+                 f"delta = {delta}, slack {slack:g} px, blur {blur:g} px at 640x480, "
+                 f"particles drawn at {args.radius_scale:g} x their radius"
                  + (f", first {args.frames} pose samples" if args.frames else "")
                  + (f", model solver iterations {args.iterations}" if args.iterations else ""))
     return "\n".join(lines)

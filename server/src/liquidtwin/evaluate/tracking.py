@@ -135,7 +135,7 @@ def format_table(tab: dict, columns: list[str], min_px: int, note: str) -> str:
 
 
 def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = None, *,
-                   disc_px: float | None = None) -> dict:
+                   disc_px: float | None = None, radius_scale: float = 1.0) -> dict:
     """Scoring only: IOU of the true particles, drawn as the engine draws its model, vs each
     observed mask of ``camera`` (reads the truth sidecar ``REC.truth.npz``).
 
@@ -144,6 +144,8 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
         built for it (its model's objects, particle radius and camera calibration are used).
       frames: only masks up to the ``frames``-th pose sample (None: all).
       disc_px: draw fixed discs of this radius, px (SPEC §2's 5 px) instead of projected spheres.
+      radius_scale: the projected spheres' radii (px, as the engine rounds them) × this, as a
+        hypothesis bank's ``radius_scale`` draws them.
     Returns:
       {"t_s": [...] s, "iou": [...], "observed_px": [...], "model_px": [...]} per mask frame
       (``model_px``: pixels the true particles cover when drawn this way).
@@ -173,7 +175,7 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
             seen = visible(cam, x, objects, poses[list(scene.occluders)], margin_px=OCCLUSION_MARGIN_PX, near=NEAR_M)
             uv, depth = cam.project(x)
             if disc_px is None:
-                r = sphere_radius_px(cam.fx, depth, radius, min_px=MIN_RADIUS_PX)
+                r = sphere_radius_px(cam.fx, depth, radius, min_px=MIN_RADIUS_PX) * radius_scale
                 model = sphere_coverage(uv, r, seen, cam.height, cam.width) > 0
             else:
                 model = model_mask(uv, seen, cam.height, cam.width, float(disc_px))

@@ -27,7 +27,8 @@ from ..session._cull import cull_fallen
 from ..session.engine import MIN_RADIUS_PX, NEAR_M, OCCLUSION_MARGIN_PX
 from ..sim import FluidModel, FluidState, collide_move, particle_radius, step
 from ..tracking import MapFilter, Observation, OpenLoop, WarpField
-from .likelihood import blur_sigma, blurred, check_comparison, disagreement, near, slack_radius
+from .likelihood import (blur_sigma, blurred, check_comparison, check_radius_scale, disagreement, near,
+                         slack_radius)
 
 #: Default distance between neighbouring hypotheses along world x, m.
 OFFSET_M = 2.0
@@ -76,11 +77,14 @@ class Bank:
       dtype: particle precision (sessions use float32; at 2 m from the origin float32 resolves
         0.24 µm, so a hypothesis's rounding differs from the same run at the origin).
       first_slot: hypothesis k sits at slot ``first_slot + k`` (offset ``slot · offset_m``).
+      radius_scale: each visible particle is drawn as a disc of this × its projected sphere's
+        radius in px (as the session engine rounds it; :func:`.likelihood.check_radius_scale`;
+        1: as the session engine draws it).
     """
 
     def __init__(self, model: FluidModel, hypotheses, occluders, *, tracking: str = "open_loop",
                  offset_m: float = OFFSET_M, shared_occlusion: bool = True, dtype=torch.float32,
-                 first_slot: int = 0):
+                 first_slot: int = 0, radius_scale: float = 1.0):
         hyps = list(hypotheses)
         if not hyps:
             raise ValueError("a hypothesis bank needs at least one hypothesis")
@@ -92,6 +96,7 @@ class Bank:
         self.hypotheses, self.occluders, self.offset_m, self.mode = hyps, tuple(occluders), float(offset_m), tracking
         self.base_model, self.shared_occlusion = model, bool(shared_occlusion)
         self.dtype, self.first_slot = dtype, int(first_slot)
+        self.radius_scale = check_radius_scale(radius_scale)
         self.M, self.K = m, len(hyps)
         self.models = [model.replace(objects=tuple(h.objects)) for h in hyps]
         self.model = model.replace(objects=tuple(g for h in hyps for g in h.objects))
@@ -111,7 +116,7 @@ class Bank:
         ``same_place`` at its own slot of this bank (the same float rounding)."""
         return Bank(self.base_model, [self.hypotheses[k]], self.occluders, tracking=self.mode, offset_m=self.offset_m,
                     shared_occlusion=self.shared_occlusion, dtype=self.dtype,
-                    first_slot=self.first_slot + k if same_place else 0)
+                    first_slot=self.first_slot + k if same_place else 0, radius_scale=self.radius_scale)
 
     def _shifts(self, dtype) -> torch.Tensor:
         s = torch.zeros(self.K, 3, dtype=dtype)
@@ -153,8 +158,8 @@ class Bank:
     def observe(self, camera, mask: torch.Tensor, slack_px: float = 0.0, blur_px: float = 0.0) -> np.ndarray:
         """Score and (closed loop) correct every hypothesis with one observed ``mask`` (H, W)
         bool of ``camera``; returns (K,) float64 pixels where each hypothesis's model mask
-        (visible particles drawn as projected spheres) disagrees with the observation, with a
-        slack of ``slack_px`` or a blur of ``blur_px`` at 640×480
+        (visible particles drawn as projected spheres of ``radius_scale`` × their radius)
+        disagrees with the observation, with a slack of ``slack_px`` or a blur of ``blur_px`` at 640×480
         (:func:`.likelihood.disagreement`; both 0: exact)."""
         mask = torch.as_tensor(mask, dtype=torch.bool)
         check_comparison(slack_px, blur_px)
@@ -178,7 +183,7 @@ class Bank:
             seen_all = visible(camera, x_all, [self.models[0].objects[j] for j in self.occluders], occ_poses,
                                margin_px=OCCLUSION_MARGIN_PX, near=NEAR_M)
         uv_all, depth_all = camera.project(x_all)
-        r_all = sphere_radius_px(camera.fx, depth_all, self.radius_m, min_px=MIN_RADIUS_PX)
+        r_all = sphere_radius_px(camera.fx, depth_all, self.radius_m, min_px=MIN_RADIUS_PX) * self.radius_scale
         new_x, new_v = s.x.clone(), s.v.clone()
         changed = False
         for k in range(self.K):

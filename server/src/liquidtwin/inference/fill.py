@@ -20,7 +20,7 @@ from ..scenes.fill import fill_container
 from ..session._build import SETTLE_S, build_scene
 from ..session.errors import EngineError
 from .bank import OFFSET_M, Bank, Hypothesis, make_tracker
-from .likelihood import DELTA, FILL_BLUR_PX, Posterior, check_comparison
+from .likelihood import DELTA, FILL_BLUR_PX, FILL_RADIUS_SCALE, Posterior, check_comparison, check_radius_scale
 from .run import run_bank
 
 FRACTIONS = (0.0, 0.3, 0.6, 0.9)
@@ -103,7 +103,7 @@ def fill_hypotheses(spec: pb.SceneSpec, container: str, fractions, *, scale: flo
 def infer_fill(rec, *, container: str | None = None, fractions=FRACTIONS, tracking: str = "warp_field",
                progress: bool = False, scale: float = 1.0, camera: str | None = None, frames: int | None = None,
                delta: float = DELTA, slack_px: float = 0.0, blur_px: float = FILL_BLUR_PX, batched: bool = True,
-               offset_m: float = OFFSET_M) -> Posterior:
+               offset_m: float = OFFSET_M, radius_scale: float = FILL_RADIUS_SCALE) -> Posterior:
     """Posterior over the initial fill of ``container`` given a recording.
 
     Args:
@@ -125,18 +125,22 @@ def infer_fill(rec, *, container: str | None = None, fractions=FRACTIONS, tracki
       batched: all hypotheses in one simulation (else one after another: the same physics, but
         a batch runs each hypothesis at its own place, so float rounding differs between them).
       offset_m: spacing of the batched hypotheses along world x, m.
+      radius_scale: the hypotheses' particles are drawn as spheres of this × their physical
+        radius (:data:`.likelihood.FILL_RADIUS_SCALE`, why in :mod:`.likelihood`).
     Returns:
       :class:`Posterior` with names like "empty", "30 %".
     """
     start = time.perf_counter()
     make_tracker(tracking)                      # a bad mode, slack or blur fails before any simulation
     check_comparison(slack_px, blur_px)
+    check_radius_scale(radius_scale)
     fr = _check(rec, fractions, scale)
     name = _container(rec.spec, container)
     scene, hyps = fill_hypotheses(rec.spec, name, fr, scale=scale, progress=progress)
-    bank = Bank(scene.model, hyps, scene.occluders, tracking=tracking, offset_m=offset_m)
+    bank = Bank(scene.model, hyps, scene.occluders, tracking=tracking, offset_m=offset_m, radius_scale=radius_scale)
+    info = {"container": name, "fractions": list(fr), "scale": scale, "radius_scale": float(radius_scale)}
     post = run_bank(bank, rec, scene.model.dt, camera=camera, frames=frames, delta=delta, slack_px=slack_px,
-                    blur_px=blur_px, batched=batched, progress=progress, info={"container": name, "fractions": list(fr), "scale": scale})
+                    blur_px=blur_px, batched=batched, progress=progress, info=info)
     post.info["analysis_s"] = post.wall_s
     post.wall_s = time.perf_counter() - start
     return post
