@@ -41,8 +41,9 @@ px over the pour where the camera saw 54.5k, and the 30 % one 42.5k. Why the mod
 covers more is not pinned down. Tried first on 12 of base seed 0's quick pours, measured on
 seed 100 (truth ranked first 14 → 19 of 24, open loop), then adopted by a rule fixed before
 the runs of base seeds 400 and 500 (pooled with 300; none of the three looked at before 0.8
-was chosen): open loop 47 → 54 of 72, warp field 43 → 48. The full partial cups and bottles
-rank as before (README, issue 5). On the quick scenes' 1.5 px discs every scale from 0.67 to
+was chosen): open loop 47 → 54 of 72, warp field 43 → 48. On the full partial pours of base
+seed 0 the cups stay 4/4 (open loop) and the bottles go 2/4 → 3/4 with the warp field, 2/4 open loop
+(README, issue 5). On the quick scenes' 1.5 px discs every scale from 0.67 to
 0.94 draws the same 5-px cross (1 draws a 3×3 square); on the full scenes' 3 px discs 0.8
 draws 21 px instead of 29.
 """
