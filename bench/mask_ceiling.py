@@ -19,9 +19,9 @@ mean over them.
 
 ``--radius-scales S …`` also draws the spheres at S × their radius (px, after the engine's
 rounding to half pixels), as the fill bank's ``radius_scale`` does, and prints for each the
-pixels drawn per observed pixel pooled over every frame of every recording: the
-calibration of ``inference.likelihood.FILL_RADIUS_SCALE`` (pick the scale whose drawing
-covers as many pixels as the camera saw, on recordings that are not the benchmark's).
+pixels drawn per observed pixel pooled over every frame of every recording. It says what a
+scale does to the drawing of the *true* particles; the fill bank's default
+(``inference.likelihood.FILL_RADIUS_SCALE``) was not chosen by it (that module's doc says how).
 """
 
 from __future__ import annotations
@@ -61,10 +61,13 @@ def measure(quick: bool, tmp: Path, min_px: int = 50) -> dict:
                 **measure_recording(path, min_px))
 
 
-def measure_recording(path: Path, min_px: int = 50, scales=()) -> dict:
+def measure_recording(path: Path, min_px: int = 50, scales=()) -> dict | None:
     """The ceilings of one recording with a truth sidecar (``path.with_suffix('.truth.npz')``);
-    ``scales``: also the spheres drawn at these radius scales (labels ``spheres_xS``)."""
+    ``scales``: also the spheres drawn at these radius scales (labels ``spheres_xS``). None
+    when its source is empty (no liquid to draw)."""
     rec = read_recording(path, images=False)
+    if not len(rec.spec.fills):
+        return None
     eng = engine_for(rec, "open_loop")
     cam = next(iter(rec.masks))
     out = {}
@@ -101,10 +104,10 @@ def main(argv=None) -> list[dict]:
         if not paths:
             raise SystemExit(f"no recordings with a truth sidecar (NAME.truth.npz) in {args.data}")
         for q in paths:
-            if not len(read_recording(q, images=False).spec.fills):
+            r = measure_recording(q, scales=args.radius_scales)
+            if r is None:
                 print(f"{q.name}: an empty source (no liquid to draw), skipped", flush=True)
                 continue
-            r = measure_recording(q, scales=args.radius_scales)
             if r["mean_iou"]["frames"] == 0:
                 print(f"{q.name}: no frame with >= {r['min_px']} observed liquid px, skipped", flush=True)
                 continue

@@ -45,7 +45,7 @@ def configure(p) -> None:
                    help="only the first N pose samples of each recording (default: all)")
     add_likelihood_options(p, slack=0.0, blur=FILL_BLUR_PX)
     p.add_argument("--radius-scale", type=float, default=FILL_RADIUS_SCALE, metavar="S",
-                   help="draw the hypotheses' particles as spheres of S x their physical radius "
+                   help="draw the hypotheses' particles as discs of S x their projected radius in px "
                         f"(default: {FILL_RADIUS_SCALE:g}; 1: as sessions draw them)")
 
 

@@ -125,8 +125,8 @@ def infer_fill(rec, *, container: str | None = None, fractions=FRACTIONS, tracki
       batched: all hypotheses in one simulation (else one after another: the same physics, but
         a batch runs each hypothesis at its own place, so float rounding differs between them).
       offset_m: spacing of the batched hypotheses along world x, m.
-      radius_scale: the hypotheses' particles are drawn as spheres of this × their physical
-        radius (:data:`.likelihood.FILL_RADIUS_SCALE`, why in :mod:`.likelihood`).
+      radius_scale: the hypotheses' particles are drawn as discs of this × their projected
+        radius in px (:data:`.likelihood.FILL_RADIUS_SCALE`, why in :mod:`.likelihood`).
     Returns:
       :class:`Posterior` with names like "empty", "30 %".
     """
