@@ -59,7 +59,14 @@ void check_csr(const torch::Tensor& x, const torch::Tensor& row_ptr, const torch
 // ---------------------------------------------------------------- neighbour search
 // Sort points by hash-grid cell (cell = radius) and list, for every sorted point, the
 // sorted indices of all other points closer than radius. Returns (order, row_ptr, col).
-std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius) {
+//
+// Cells are keyed x-fastest within z, y. When the points' bounding box spans at most
+// max_dense cells (default 8 n + 4096) the keys index a dense grid: a counting sort orders
+// the points and one prefix sum gives every cell's range of sorted points. Otherwise each
+// axis's coordinates are ranked among the occupied ones (a far-away point costs one rank, not
+// a huge grid) and cells are found by binary search. Both give the same order and the same
+// lists, bit for bit (tested); the dense path is the fast one for a liquid in one place.
+std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius, int64_t max_dense) {
   TORCH_CHECK(x.dim() == 2 && x.size(1) == 3, "positions must be (N, 3)");
   TORCH_CHECK(radius > 0, "radius must be > 0");
   x = x.contiguous().to(torch::kDouble);
@@ -67,28 +74,48 @@ std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius) {
   const double* px = x.data_ptr<double>();
   std::vector<int64_t> c(3 * n);
   for (int64_t i = 0; i < 3 * n; ++i) c[i] = static_cast<int64_t>(std::floor(px[i] / radius));
-  // Rank-compress each axis so keys stay small whatever the spread of the points.
-  std::vector<std::vector<int64_t>> uniq(3);
-  for (int ax = 0; ax < 3; ++ax) {
-    auto& u = uniq[ax];
-    u.resize(n);
-    for (int64_t i = 0; i < n; ++i) u[i] = c[3 * i + ax];
-    std::sort(u.begin(), u.end());
-    u.erase(std::unique(u.begin(), u.end()), u.end());
+  int64_t lo[3] = {0, 0, 0}, ext[3] = {1, 1, 1};
+  for (int ax = 0; ax < 3 && n > 0; ++ax) {
+    int64_t a = c[ax], b = c[ax];
+    for (int64_t i = 1; i < n; ++i) { a = std::min(a, c[3 * i + ax]); b = std::max(b, c[3 * i + ax]); }
+    lo[ax] = a; ext[ax] = b - a + 1;
   }
-  const int64_t u0 = uniq[0].size(), u1 = uniq[1].size();
-  auto rank = [&](int ax, int64_t v) -> int64_t {  // -1 when v does not occur
-    const auto& u = uniq[ax];
-    auto it = std::lower_bound(u.begin(), u.end(), v);
-    return (it != u.end() && *it == v) ? (it - u.begin()) : -1;
-  };
-  std::vector<int64_t> key(n);
-  for (int64_t i = 0; i < n; ++i)
-    key[i] = rank(0, c[3 * i]) + u0 * (rank(1, c[3 * i + 1]) + u1 * rank(2, c[3 * i + 2]));
+  const int64_t limit = max_dense < 0 ? 8 * n + 4096 : max_dense;
+  const bool dense = static_cast<double>(ext[0]) * static_cast<double>(ext[1]) * static_cast<double>(ext[2]) <=
+                     static_cast<double>(limit);
+
   auto order_t = torch::empty({n}, torch::kInt64);
   int64_t* order = order_t.data_ptr<int64_t>();
-  std::iota(order, order + n, 0);
-  std::stable_sort(order, order + n, [&](int64_t p, int64_t q) { return key[p] < key[q]; });
+  std::vector<int64_t> key(n);
+  std::vector<std::vector<int64_t>> uniq(3);
+  std::vector<int64_t> grid_start;  // dense path: first sorted point of every grid key, + n
+  if (dense) {
+    const int64_t cells = ext[0] * ext[1] * ext[2];
+    for (int64_t i = 0; i < n; ++i)
+      key[i] = (c[3 * i] - lo[0]) + ext[0] * ((c[3 * i + 1] - lo[1]) + ext[1] * (c[3 * i + 2] - lo[2]));
+    grid_start.assign(cells + 1, 0);
+    for (int64_t i = 0; i < n; ++i) ++grid_start[key[i] + 1];
+    for (int64_t k = 0; k < cells; ++k) grid_start[k + 1] += grid_start[k];
+    std::vector<int64_t> fill(grid_start.begin(), grid_start.end() - 1);
+    for (int64_t i = 0; i < n; ++i) order[fill[key[i]]++] = i;  // counting sort: stable
+  } else {
+    // Rank-compress each axis so keys stay small whatever the spread of the points.
+    for (int ax = 0; ax < 3; ++ax) {
+      auto& u = uniq[ax];
+      u.resize(n);
+      for (int64_t i = 0; i < n; ++i) u[i] = c[3 * i + ax];
+      std::sort(u.begin(), u.end());
+      u.erase(std::unique(u.begin(), u.end()), u.end());
+    }
+    auto rank0 = [&](int ax, int64_t v) {
+      return std::lower_bound(uniq[ax].begin(), uniq[ax].end(), v) - uniq[ax].begin();
+    };
+    const int64_t u0 = uniq[0].size(), u1 = uniq[1].size();
+    for (int64_t i = 0; i < n; ++i)
+      key[i] = rank0(0, c[3 * i]) + u0 * (rank0(1, c[3 * i + 1]) + u1 * rank0(2, c[3 * i + 2]));
+    std::iota(order, order + n, 0);
+    std::stable_sort(order, order + n, [&](int64_t p, int64_t q) { return key[p] < key[q]; });
+  }
   std::vector<double> sx(n), sy(n), sz(n);  // sorted positions, one array per axis
   std::vector<int64_t> ks(n), cs(3 * n);
   for (int64_t i = 0; i < n; ++i) {
@@ -104,52 +131,73 @@ std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius) {
   }
   cell_start.push_back(n);
   // The neighbour cells of every occupied cell, looked up once per cell rather than once per
-  // particle; dz, dy, dx order as before. A neighbour's rank on an axis is the cell's own ±1
-  // when that coordinate occurs, and the three cells of a row (dx = -1, 0, 1) have
-  // consecutive keys: one search per row. The cells of a row that occur are consecutive
-  // cells, so each row is one contiguous range of sorted points: 9 ranges [begin, end) per
-  // cell (empty when none of the row's cells occurs).
+  // particle; dz, dy, dx order. The three cells of a row (dx = -1, 0, 1) have consecutive
+  // keys, so each row is one contiguous range of sorted points: 9 ranges [begin, end) per
+  // cell (empty when none of the row's cells is occupied).
   const int64_t nc = static_cast<int64_t>(cell_key.size());
   std::vector<int64_t> ranges(18 * nc, 0);
-  auto near = [&](int ax, int64_t r, int64_t c, int d) -> int64_t {
-    const auto& u = uniq[ax];
-    const int64_t q = r + d;
-    return (q >= 0 && q < static_cast<int64_t>(u.size()) && u[q] == c + d) ? q : -1;
-  };
-  at::parallel_for(0, nc, 64, [&](int64_t b, int64_t e) {
-    for (int64_t ci = b; ci < e; ++ci) {
-      const int64_t i = cell_start[ci];
-      const int64_t cx = cs[3 * i], cy = cs[3 * i + 1], cz = cs[3 * i + 2];
-      const int64_t rx0 = rank(0, cx), ry0 = rank(1, cy), rz0 = rank(2, cz);
-      const int64_t rxs[3] = {near(0, rx0, cx, -1), rx0, near(0, rx0, cx, 1)};
-      int64_t* out = &ranges[18 * ci];
-      for (int dz = -1; dz <= 1; ++dz) {
-        const int64_t rz = near(2, rz0, cz, dz);
-        for (int dy = -1; dy <= 1; ++dy, out += 2) {
-          const int64_t ry = rz < 0 ? -1 : near(1, ry0, cy, dy);
-          if (ry < 0) continue;
-          const int64_t row = u0 * (ry + u1 * rz);
-          auto it = std::lower_bound(cell_key.begin(), cell_key.end(), row + (rxs[0] >= 0 ? rxs[0] : rx0));
-          int64_t lo = -1, hi = -1;
-          for (int dx = 0; dx < 3; ++dx) {
-            if (rxs[dx] < 0) continue;
-            const int64_t k = row + rxs[dx];
-            while (it != cell_key.end() && *it < k) ++it;
-            if (it != cell_key.end() && *it == k) {
-              const int64_t cj = it - cell_key.begin();
-              if (lo < 0) lo = cj;
-              hi = cj;
-            }
+  if (dense) {
+    at::parallel_for(0, nc, 64, [&](int64_t b, int64_t e) {
+      for (int64_t ci = b; ci < e; ++ci) {
+        const int64_t i = cell_start[ci];
+        const int64_t gx = cs[3 * i] - lo[0], gy = cs[3 * i + 1] - lo[1], gz = cs[3 * i + 2] - lo[2];
+        const int64_t x0 = std::max<int64_t>(gx - 1, 0), x1 = std::min<int64_t>(gx + 1, ext[0] - 1);
+        int64_t* out = &ranges[18 * ci];
+        for (int dz = -1; dz <= 1; ++dz) {
+          for (int dy = -1; dy <= 1; ++dy, out += 2) {
+            const int64_t y = gy + dy, z = gz + dz;
+            if (y < 0 || y >= ext[1] || z < 0 || z >= ext[2]) continue;
+            const int64_t row = ext[0] * (y + ext[1] * z);
+            out[0] = grid_start[row + x0]; out[1] = grid_start[row + x1 + 1];
           }
-          if (lo >= 0) { out[0] = cell_start[lo]; out[1] = cell_start[hi + 1]; }
         }
       }
-    }
-  });
-  // One distance pass: each block of points lists its neighbours into its own buffer, then the
-  // buffers are concatenated in block order (the same lists whatever the thread count). The
-  // candidate is always written and the count advanced only for a neighbour: no branch in
-  // the inner loop (~4x faster than pushing back under an if).
+    });
+  } else {
+    const int64_t u0 = uniq[0].size(), u1 = uniq[1].size();
+    auto rank = [&](int ax, int64_t v) -> int64_t {  // -1 when v does not occur
+      const auto& u = uniq[ax];
+      auto it = std::lower_bound(u.begin(), u.end(), v);
+      return (it != u.end() && *it == v) ? (it - u.begin()) : -1;
+    };
+    // A neighbour's rank on an axis is the cell's own ±1 when that coordinate occurs; one
+    // search per row finds its occupied cells, which are consecutive.
+    auto near = [&](int ax, int64_t r, int64_t cc, int d) -> int64_t {
+      const auto& u = uniq[ax];
+      const int64_t q = r + d;
+      return (q >= 0 && q < static_cast<int64_t>(u.size()) && u[q] == cc + d) ? q : -1;
+    };
+    at::parallel_for(0, nc, 64, [&](int64_t b, int64_t e) {
+      for (int64_t ci = b; ci < e; ++ci) {
+        const int64_t i = cell_start[ci];
+        const int64_t cx = cs[3 * i], cy = cs[3 * i + 1], cz = cs[3 * i + 2];
+        const int64_t rx0 = rank(0, cx), ry0 = rank(1, cy), rz0 = rank(2, cz);
+        const int64_t rxs[3] = {near(0, rx0, cx, -1), rx0, near(0, rx0, cx, 1)};
+        int64_t* out = &ranges[18 * ci];
+        for (int dz = -1; dz <= 1; ++dz) {
+          const int64_t rz = near(2, rz0, cz, dz);
+          for (int dy = -1; dy <= 1; ++dy, out += 2) {
+            const int64_t ry = rz < 0 ? -1 : near(1, ry0, cy, dy);
+            if (ry < 0) continue;
+            const int64_t row = u0 * (ry + u1 * rz);
+            auto it = std::lower_bound(cell_key.begin(), cell_key.end(), row + (rxs[0] >= 0 ? rxs[0] : rx0));
+            int64_t lo_c = -1, hi_c = -1;
+            for (int dx = 0; dx < 3; ++dx) {
+              if (rxs[dx] < 0) continue;
+              const int64_t k = row + rxs[dx];
+              while (it != cell_key.end() && *it < k) ++it;
+              if (it != cell_key.end() && *it == k) {
+                const int64_t cj = it - cell_key.begin();
+                if (lo_c < 0) lo_c = cj;
+                hi_c = cj;
+              }
+            }
+            if (lo_c >= 0) { out[0] = cell_start[lo_c]; out[1] = cell_start[hi_c + 1]; }
+          }
+        }
+      }
+    });
+  }
   const double r2 = radius * radius;
   auto row_ptr_t = torch::zeros({n + 1}, torch::kInt64);
   int64_t* row_ptr = row_ptr_t.data_ptr<int64_t>();
@@ -419,7 +467,8 @@ std::vector<torch::Tensor> viscosity_backward(torch::Tensor x, torch::Tensor row
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.doc() = "liquidtwin fused CPU kernels for the SPNets PBF step";
-  m.def("sorted_neighbors", &sorted_neighbors, "cell-sort points and list neighbours (order, row_ptr, col)");
+  m.def("sorted_neighbors", &sorted_neighbors, "cell-sort points and list neighbours (order, row_ptr, col)",
+        py::arg("x"), py::arg("radius"), py::arg("max_dense") = -1);
   m.def("density_normals", &density_normals);
   m.def("density_normals_backward", &density_normals_backward);
   m.def("pressure_tension", &pressure_tension);

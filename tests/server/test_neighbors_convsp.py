@@ -8,6 +8,7 @@ import torch
 
 import liquidtwin as lt
 from liquidtwin.sim import fused
+from liquidtwin.sim.fused import _native
 from liquidtwin.sim.kernels import kernel_value
 
 
@@ -43,6 +44,30 @@ def test_native_neighbors_match_brute_force():
     # sorted by cell: equal cells are contiguous
     changes = (keys[1:] != keys[:-1]).any(1).sum()
     assert int(changes) + 1 == len(torch.unique(keys, dim=0))
+
+
+@pytest.mark.skipif(os.environ.get("LIQUIDTWIN_NO_NATIVE") == "1", reason="installed without the C++ extension on purpose")
+@pytest.mark.parametrize("seed", range(3))
+def test_native_dense_grid_and_ranked_cells_give_the_same_lists(seed):
+    """The dense-grid path (a compact cloud) and the ranked-cell path (forced with
+    max_dense=0, the one a far-away point takes) give the same order and lists, bit for bit,
+    and both match brute force; a cloud with a far point takes the ranked path unforced."""
+    g = torch.Generator().manual_seed(seed)
+    r = 0.021
+    x = torch.rand(1500, 3, generator=g, dtype=torch.float64) * torch.tensor([0.3, 0.1, 0.2], dtype=torch.float64) - 0.05
+    x[7:11] = x[20]  # coincident points
+    x[30] = x[31] + torch.tensor([r, 0.0, 0.0], dtype=torch.float64)  # exactly r apart: not a pair
+    dense = fused.sorted_neighbors(x, r)
+    ranked = _native.sorted_neighbors(x, r, 0)
+    assert all(torch.equal(a, b) for a, b in zip(dense, ranked))
+    order, row_ptr, col = dense
+    xs = x[order]
+    got = {(i, int(j)) for i in range(len(x)) for j in col[row_ptr[i]:row_ptr[i + 1]]}
+    assert got == _pairs(lt.brute_force_neighbors(xs, None, r))
+    far = torch.cat([x, torch.full((1, 3), 1e3, dtype=torch.float64)])  # a ~1e14-cell box; sorts last
+    order_f, row_ptr_f, col_f = fused.sorted_neighbors(far, r)
+    assert order_f[-1] == len(x) and torch.equal(order_f[:-1], order)
+    assert torch.equal(row_ptr_f[:-1], row_ptr) and torch.equal(col_f, col)
 
 
 @pytest.mark.skipif(os.environ.get("LIQUIDTWIN_NO_NATIVE") == "1", reason="installed without the C++ extension on purpose")
