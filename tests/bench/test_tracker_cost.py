@@ -1,5 +1,5 @@
 """bench/tracker_cost.py fills its basin to the particle count asked for (the issue's 4k and 8k
-figures): ``fill_ml`` rescales the volume by the count each fill gives until it is within 3 %."""
+figures): ``fill_ml`` searches the volume (rescaling, then interpolating) until the count is within 3 %."""
 
 import sys
 from pathlib import Path

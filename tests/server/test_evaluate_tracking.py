@@ -10,14 +10,25 @@ import pytest
 from liquidtwin.cli import main as cli_main
 from liquidtwin.evaluate import cases, ensure
 from liquidtwin.evaluate.tracking import ROWS, format_table, table
+from realisations import SKINS, realisation
 
 #: Pose samples replayed (60 Hz): the first case (partial pour from a 30 % cup, 3.5 s) is in
 #: view from ~1.3 s. Measured over this many (evaluate tracking --quick, seed 0): open loop
 #: 0.14, MAP 0.23, warp 0.21, ceiling 0.82; over 150 samples MAP is still level with open loop.
-#: On stop 41's world (generate/world.py) MAP gains +0.017 here (0.162 against 0.144): one
-#: chaotic pour says little about the MAP filter, whose margin over open loop is asserted on
-#: three pours in test_tracking_spnets.py; here it only has to beat open loop.
+#: On stop 41's world (generate/world.py) MAP gains +0.017 here (0.162 against 0.144), and
+#: with the default neighbour skin of stop 47 (the same physics in another float rounding)
+#: −0.004 (0.151 against 0.155): one chaotic pour says nothing about the MAP filter, and over
+#: realisations of three pours its gain is not distinguishable from zero either
+#: (test_tracking_spnets.py, POUR_MARGIN's comment). Only the ceiling bounds it here.
 FRAMES = 210
+#: The warp field's mean IOU gain over open loop, asserted over three realisations of the
+#: model's chaos on this recording (realisations.SKINS): measured +0.062, +0.106, +0.102 at
+#: skins 0, 0.1 and 0.2 h (mean 0.090); half of that is asserted. Regenerating the pour
+#: itself in another rounding gives another pour, and on single pours the warp field is not
+#: always ahead (``bench/perturbed.py S ... -k closed_loop_beats``, stop 47: at skins 0.05 and
+#: 0.2 h, warp 0.201 / open loop 0.307 and 0.215 / 0.217): the benchmark's 18 pours carry
+#: that claim (README, issue 5).
+WARP_MARGIN = 0.045
 
 
 @pytest.fixture(scope="module")
@@ -98,15 +109,27 @@ def test_a_tracker_a_session_cannot_run_is_reported_not_available(evaluated, mon
 
 
 def test_closed_loop_beats_open_loop_and_stays_below_the_ceiling(evaluated):
+    """The CLI's run (the default neighbour skin) and two more realisations of the model's
+    chaos on the same recording (``realisations.SKINS``): the ceiling above every tracker in
+    each, the warp field above open loop on their mean."""
+    import liquidtwin.evaluate.tracking as T
     _, _, doc = evaluated
-    s = doc["cases"][0]["series"]
-    # Every tracker sees the same mask frames.
-    assert s["open_loop"]["t_s"] == s["warp_field"]["t_s"] == s["map_filter"]["t_s"] == s["ceiling"]["t_s"]
-    open_loop, warp, map_ = _mean(s["open_loop"]), _mean(s["warp_field"]), _mean(s["map_filter"])
-    ceiling = _mean(s["ceiling"])
-    assert warp > open_loop + 0.03, (warp, open_loop)
-    assert map_ > open_loop, (map_, open_loop)
-    assert ceiling > max(warp, map_), (ceiling, warp, map_)
+    runs = [doc["cases"][0]]
+    for skin in SKINS[1:]:
+        with realisation(skin):
+            runs.append(T.evaluate_case(doc["cases"][0]["recording"], ("open_loop", "map_filter", "warp_field"),
+                                        frames=FRAMES))
+    gains = []
+    for skin, r in zip(SKINS, runs):
+        s = r["series"]
+        # Every tracker sees the same mask frames.
+        assert s["open_loop"]["t_s"] == s["warp_field"]["t_s"] == s["map_filter"]["t_s"] == s["ceiling"]["t_s"]
+        open_loop, warp, map_ = _mean(s["open_loop"]), _mean(s["warp_field"]), _mean(s["map_filter"])
+        ceiling = _mean(s["ceiling"])
+        print(f"\nskin {skin} h: open loop {open_loop:.3f}, MAP {map_:.3f}, warp {warp:.3f}, ceiling {ceiling:.3f}")
+        assert ceiling > max(warp, map_, open_loop), (ceiling, warp, map_, open_loop)
+        gains.append(warp - open_loop)
+    assert np.mean(gains) > WARP_MARGIN, gains
 
 
 def test_table_pools_frames_per_row_and_marks_missing_columns():

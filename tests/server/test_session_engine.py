@@ -17,6 +17,7 @@ from liquidtwin.session.engine import held_count
 from liquidtwin.session import (BACKGROUND_RGB, MODEL_RGB, OBSERVED_RGB, OVERLAP_RGB, EngineError, SessionEngine,
                                 make_overlay)
 from liquidtwin.sim import make_state
+from realisations import SKINS, realisation
 
 DATA = Path(__file__).parent / "data"
 GOLDEN = DATA / "golden_pour_dump.mcap"
@@ -75,25 +76,34 @@ def _replay(eng, rec):
 
 
 def test_warp_field_tracks_the_golden_pour_better_than_open_loop(rec):
-    open_iou, open_vol, open_ms = _replay(_engine(rec, pb.OPEN_LOOP), rec)
-    warp = _engine(rec)                              # TRACKING_MODE_UNSPECIFIED would give the same
-    warp_iou, warp_vol, warp_ms = _replay(warp, rec)
-    print(f"\nmean IOU over {len(open_iou)} liquid frames: open loop {open_iou.mean():.3f}, "
-          f"warp field {warp_iou.mean():.3f}; max volume error open {open_vol.max():.2f} ml, "
-          f"warp {warp_vol.max():.2f} ml, at the end open {open_vol[-1]:.2f} ml, warp {warp_vol[-1]:.2f} ml; ms/frame open {open_ms.mean():.1f}, warp {warp_ms.mean():.1f} "
-          f"({warp.n_particles} particles)")
-    assert len(open_iou) >= 10
-    # Measured here: open loop 0.217, warp 0.232 (11 frames); chaotic splashes differ a little between
-    # CPUs, so the margin asserted is half the measured one.
-    assert warp_iou.mean() > open_iou.mean() + 0.007
-    # Volumes (both containers) against the truth. Measured: 0.43 ml before the pour (the
-    # fills' calibrations differ), 0.45 ml (open loop) / 1.76 ml (warp: since the model mask
-    # draws projected spheres its correction moves a few particles across the pan's rim) at the
-    # last frame, up to 5.2 ml while the stream is in the air (the model's stream runs a frame
-    # or two off the truth's).
-    for err, last_tol in ((open_vol, 1.5), (warp_vol, 2.5)):
-        print("volume errors, ml:", np.round(err, 2))
-        assert err[0] < 1.0 and err[-1] < last_tol and err.max() < 8.0, err
+    """Averaged over three realisations of the model's chaos (``realisations.SKINS``: the same
+    physics in another float rounding; the recording is the same file)."""
+    gains, open_last, warp_last = [], [], []
+    for skin in SKINS:
+        with realisation(skin):
+            open_iou, open_vol, open_ms = _replay(_engine(rec, pb.OPEN_LOOP), rec)
+            warp = _engine(rec)                              # TRACKING_MODE_UNSPECIFIED would give the same
+            warp_iou, warp_vol, warp_ms = _replay(warp, rec)
+        print(f"\nskin {skin} h: mean IOU over {len(open_iou)} liquid frames: open loop {open_iou.mean():.3f}, "
+              f"warp field {warp_iou.mean():.3f}; max volume error open {open_vol.max():.2f} ml, "
+              f"warp {warp_vol.max():.2f} ml, at the end open {open_vol[-1]:.2f} ml, warp {warp_vol[-1]:.2f} ml; "
+              f"ms/frame open {open_ms.mean():.1f}, warp {warp_ms.mean():.1f} ({warp.n_particles} particles)")
+        assert len(open_iou) >= 10
+        # Volumes (both containers) against the truth: 0.1–0.5 ml before the pour (the fills'
+        # calibrations differ), up to 5.4–7.1 ml while the stream is in the air (the model's
+        # stream runs a frame or two off the truth's).
+        for err in (open_vol, warp_vol):
+            assert err[0] < 1.0 and err.max() < 8.0, err
+        gains.append(warp_iou.mean() - open_iou.mean())
+        open_last.append(open_vol[-1])
+        warp_last.append(warp_vol[-1])
+    # Measured over five skins (0, 0.05, 0.1, 0.2, 0.3 h; bench/perturbed.py): the warp field's
+    # IOU gain +0.042, -0.015, +0.009, +0.055, +0.050 (mean 0.028); the volume error at the last
+    # frame open loop 1.75, 0.72, 0.59, 0.88, 0.47 ml, warp 0.54, 1.56, 0.71, 0.71, 0.15 ml (the
+    # warp field's correction can move a few particles across the pan's rim). Asserted on the
+    # means over SKINS: half the measured gain, and the old bounds on the last frame.
+    assert np.mean(gains) > 0.014, gains
+    assert np.mean(open_last) < 1.5 and np.mean(warp_last) < 2.5, (open_last, warp_last)
 
 
 def test_checkpoint_continues_bit_for_bit(rec):

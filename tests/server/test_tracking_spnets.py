@@ -16,6 +16,7 @@ from liquidtwin.tracking import (BlendNet, Observation, PerceptionWeightsError, 
                                  load_blend_net, nearest_vectors, solve_perception)
 from liquidtwin.tracking import perception as P
 from liquidtwin.tracking.perception import WEIGHTS
+from realisations import SKINS, realisation
 
 H_K, SPACING = 0.011, 0.00605
 R_M = particle_radius(SPACING)
@@ -32,7 +33,19 @@ POUR_SEEDS = (1, 2, 3)
 #: warp field +0.199, −0.011, +0.159. Since stop 41's world (its cohesion no longer raised by
 #: its extra solver iterations: generate/world.py): spnets_perception +0.201, +0.033, +0.262;
 #: warp field +0.183, +0.054, +0.116; MAP filter +0.061, +0.012, +0.077.
-POUR_MARGIN = {"spnets_perception": 0.05, "warp_field": 0.03, "map_filter": 0.02}
+#: Stop 47 replayed the same three pours in other float roundings of the model (neighbour
+#: skins, ``realisations``; ``bench/perturbed.py S ... -k generated_pours``, which also
+#: regenerates the pours in that rounding): skin 0 (the default since) spnets_perception
+#: +0.243, +0.157, +0.254, warp field +0.077, +0.037, +0.108, MAP filter −0.023, −0.016,
+#: +0.034; skin 0.1 h (the numerics of the run above) exactly its numbers; skin 0.3 h
+#: spnets_perception +0.188, +0.201, +0.139, warp field +0.032, +0.153, +0.035, MAP filter
+#: −0.017, −0.040, −0.100. The MAP filter's mean gain, +0.050 in one rounding, is −0.002 and
+#: −0.052 in the others: no gain to assert, so it is not replayed here (README, issue 5:
+#: the MAP column is below open loop on quick rows too). Its scores and choices are tested on
+#: hand-made cases in test_tracking_map.py. The margins below are asserted on the mean over
+#: two realisations (skins 0 and 0.1 h: 18 replays, the test's time budget), where the
+#: smallest of the six warp-field gains was +0.037 and the mean +0.086.
+POUR_MARGIN = {"spnets_perception": 0.05, "warp_field": 0.03}
 CAMERA = "thermal"
 
 
@@ -296,19 +309,23 @@ def pours(tmp_path_factory):
 
 
 def test_closed_loop_sessions_track_generated_pours_better_than_open_loop(pours):
-    """Every closed-loop tracker beats open loop on average over the pours by its margin, and
-    SPNets+perception (the best tracker of the benchmark) on every pour."""
+    """Over two realisations of the model's chaos (the first two ``realisations.SKINS``, the
+    same recordings): every closed-loop tracker beats open loop on average over the pours by its
+    margin, and SPNets+perception (the best tracker of the benchmark) on every pour."""
     from liquidtwin.evaluate.replay import engine_for, replay
     gains = {m: [] for m in POUR_MARGIN}
-    for seed, rec in pours.items():
-        scores = {}
-        for mode in ("open_loop", *POUR_MARGIN):
-            eng = engine_for(rec, mode)
-            scores[mode] = replay(rec, eng).mean_iou()
-            assert eng.n_particles > 0.9 * eng._scene.state.x.shape[0]        # liquid kept, not thrown away
-        for m in POUR_MARGIN:
-            gains[m].append(scores[m] - scores["open_loop"])
-        print(f"seed {seed}: mean IOU " + ", ".join(f"{m} {v:.3f}" for m, v in scores.items()))
+    for skin in SKINS[:2]:
+        for seed, rec in pours.items():
+            scores = {}
+            for mode in ("open_loop", *POUR_MARGIN):
+                with realisation(skin):
+                    eng = engine_for(rec, mode)
+                    scores[mode] = replay(rec, eng).mean_iou()
+                if mode != "open_loop":       # a correction keeps the liquid (open loop may splash some out)
+                    assert eng.n_particles > 0.9 * eng._scene.state.x.shape[0], (skin, seed, mode)
+            for m in POUR_MARGIN:
+                gains[m].append(scores[m] - scores["open_loop"])
+            print(f"skin {skin} h, seed {seed}: mean IOU " + ", ".join(f"{m} {v:.3f}" for m, v in scores.items()))
     for m, margin in POUR_MARGIN.items():
         assert np.mean(gains[m]) > margin, (m, gains[m])
     assert min(gains["spnets_perception"]) > 0, gains

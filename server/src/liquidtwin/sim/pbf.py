@@ -114,6 +114,12 @@ class FluidState:
 #: liquid 11.5 deep rests at 4, 20 deep at 7. Other h, dt or relaxation were not measured.
 LAYERS_PER_ITERATION = 3.0
 
+#: Neighbour-list skin of models created without one, in units of h. 0: the lists are rebuilt
+#: at every solver iteration and hold only pairs closer than h (the fastest; see
+#: ``FluidModel.skin``). Any skin gives the same step up to float rounding, so tests and
+#: ``bench/perturbed.py`` set it to draw other realisations of chaotic rollouts.
+DEFAULT_SKIN = 0.0
+
 
 def iterations_for_depth(depth_m: float, spacing: float, least: int = 1) -> int:
     """Fewest solver iterations that hold liquid ``depth_m`` deep at rest
@@ -214,7 +220,7 @@ class FluidModel:
             kappa=kappa, rest_density=rho0,
             collision_distance=0.0125 * h if collision_distance is None else float(collision_distance),
             relaxation=float(relaxation), damp=float(damp), max_speed=max_speed,
-            skin=0.0 if skin is None else float(skin), max_pieces=int(max_pieces), backend=backend,
+            skin=DEFAULT_SKIN * h if skin is None else float(skin), max_pieces=int(max_pieces), backend=backend,
             reference_iterations=None if reference_iterations is None else int(reference_iterations),
             _normal_dilation=dil,
         )
