@@ -68,7 +68,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--old", type=Path, required=True, help="the old version's server/src (with its _native built)")
     p.add_argument("--new", type=Path, default=HERE.parent / "server" / "src", help="the new version's server/src")
-    p.add_argument("--particles", type=int, nargs="+", default=[2000, 8000, 32000])
+    p.add_argument("--particles", type=int, nargs="*", default=[2000, 8000, 32000], help="basin sizes (none: skip the basin)")
     p.add_argument("--steps", type=int, default=20, help="timed basin steps per measurement")
     p.add_argument("--rounds", type=int, default=3, help="measurements per version (alternating)")
     p.add_argument("--pour-steps", type=int, default=300, help="steps of the full-size pour (0: skip it)")
