@@ -147,8 +147,9 @@ class FluidModel:
       max_speed: optional speed cap, m/s, applied before prediction.
       skin: neighbour lists are built to h + skin and rebuilt when a particle moves skin/2.
         The default 0 rebuilds them at every solver iteration: every pair pass then walks
-        only pairs closer than h, which saves more than the extra builds cost (steps 1.1–1.4×
-        faster than with 0.1 h: ``bench/step_versions.py``).
+        only pairs closer than h, which saves more than the extra builds cost (with the
+        dense-grid search of the same change, steps 1.25–1.45× faster than with 0.1 h:
+        ``bench/step_versions.py``).
       max_pieces: upper bound on anti-clipping pieces per move (a warning names any excess).
       backend: "auto", "torch" (ConvSP reference) or "fused" (C++ kernels).
       reference_iterations: None (SPNets as published): cohesion and surface tension move the
