@@ -2,10 +2,11 @@
 // liquidtwin/sim/collide.py, forward and backward. Included by pbf_native.cpp, which
 // registers the functions.
 //
-// The arithmetic mirrors the torch path operation by operation so both agree to rounding:
+// The arithmetic computes what the torch path computes, so both agree to rounding:
 // SDFGrid.sample_local (clamp to the grid box, grid_sample trilinear with align_corners and
-// border padding, plus the distance to the box), quat_to_matrix / interpolate_poses (nlerp),
-// and push_out (7-point stencil: value and central-difference normal of min_j SDF_j).
+// border padding, plus the distance to the box; here in a cheaper equal form, Grid::locate),
+// quat_to_matrix / interpolate_poses (nlerp), and push_out (7-point stencil: value and
+// central-difference normal of min_j SDF_j).
 // Every particle is independent, so the loop parallelises over particles without atomics.
 #pragma once
 
@@ -26,109 +27,75 @@ struct Grid {
   int64_t n[3] = {0, 0, 0};
   T origin[3] = {0, 0, 0};
   T cell = 0;
+  T inv_cell = 0;
   T extent[3] = {0, 0, 0};  // n - 1
 
-  T node(int64_t i, int64_t j, int64_t k) const { return v[(i * n[1] + j) * n[2] + k]; }
-
-  // The trilinear cell of continuous node index ix (3,): its lower corner, the weights
-  // a = 1 − frac and b = frac per axis, and whether the upper corners lie inside the grid.
-  struct Cell {
-    int64_t x0, y0, z0;
-    T ax, bx, ay, by, az, bz;
-    bool xin, yin, zin;
-    Cell(const T ix[3], const int64_t n[3]) {
-      x0 = static_cast<int64_t>(std::floor(ix[0]));
-      y0 = static_cast<int64_t>(std::floor(ix[1]));
-      z0 = static_cast<int64_t>(std::floor(ix[2]));
-      ax = static_cast<T>(x0 + 1) - ix[0]; bx = ix[0] - static_cast<T>(x0);
-      ay = static_cast<T>(y0 + 1) - ix[1]; by = ix[1] - static_cast<T>(y0);
-      az = static_cast<T>(z0 + 1) - ix[2]; bz = ix[2] - static_cast<T>(z0);
-      xin = x0 + 1 < n[0]; yin = y0 + 1 < n[1]; zin = z0 + 1 < n[2];
+  // Node index of local point p clamped to the grid box (uc), the distance components from p
+  // to the box (du, m) and whether p lies strictly inside the box along each axis (inside).
+  // SDFGrid.sample_local maps uc to grid_sample's [-1, 1] and grid_sample maps it back
+  // (align_corners, border padding): the same index up to rounding, so it is used as it is.
+  T locate(const T p[3], T uc[3], T du[3], bool inside[3]) const {
+    T out2 = 0;
+    for (int a = 0; a < 3; ++a) {
+      const T u = (p[a] - origin[a]) * inv_cell;
+      uc[a] = std::min(std::max(u, T(0)), extent[a]);
+      inside[a] = u > T(0) && u < extent[a];
+      du[a] = (u - uc[a]) * cell;
+      out2 += du[a] * du[a];
     }
-  };
+    return out2 > T(0) ? std::sqrt(out2) : T(0);
+  }
+
+  // The 8 trilinear corners of node index ix (c[x][y][z]) and the upper weights b (3,). The
+  // lower corner stays one node below the top, so all 8 exist; at the top face the upper
+  // corner takes weight 1 and gives grid_sample's value (and, with the clip's zero
+  // derivative along that axis, its gradient).
+  void corners(const T ix[3], T c[2][2][2], T b[3]) const {
+    int64_t c0[3];
+    for (int a = 0; a < 3; ++a) {
+      c0[a] = std::min(static_cast<int64_t>(ix[a]), n[a] - 2);  // ix >= 0: truncation is floor
+      b[a] = ix[a] - static_cast<T>(c0[a]);
+    }
+    const T* base = v + (c0[0] * n[1] + c0[1]) * n[2] + c0[2];
+    const int64_t sx = n[1] * n[2], sy = n[2];
+    c[0][0][0] = base[0]; c[0][0][1] = base[1]; c[0][1][0] = base[sy]; c[0][1][1] = base[sy + 1];
+    c[1][0][0] = base[sx]; c[1][0][1] = base[sx + 1]; c[1][1][0] = base[sx + sy]; c[1][1][1] = base[sx + sy + 1];
+  }
 
   // Trilinear value at the clamped point and the distance from the point to the grid box.
   void sample(const T p[3], T& val, T& outside) const {
-    T ix[3];
-    T out2 = 0;
-    for (int a = 0; a < 3; ++a) {
-      T u = (p[a] - origin[a]) / cell;
-      T uc = std::min(std::max(u, T(0)), extent[a]);
-      T du = (u - uc) * cell;
-      out2 += du * du;
-      T g = T(2) * uc / extent[a] - T(1);                           // sample_local's grid coordinate
-      T c = ((g + T(1)) / T(2)) * static_cast<T>(n[a] - 1);        // grid_sample, align_corners=True
-      ix[a] = std::min(static_cast<T>(n[a] - 1), std::max(c, T(0)));  // border padding
-    }
-    outside = std::sqrt(out2);
-    // grid_sample's 3-D trilinear: corners in its order, each weighted by the opposite volume.
-    const Cell cl(ix, n);
-    const int64_t x0 = cl.x0, y0 = cl.y0, z0 = cl.z0, x1 = x0 + 1, y1 = y0 + 1, z1 = z0 + 1;
-    const T ax = cl.ax, bx = cl.bx, ay = cl.ay, by = cl.by, az = cl.az, bz = cl.bz;
-    const bool xin = cl.xin, yin = cl.yin, zin = cl.zin;
-    T r = 0;
-    r += node(x0, y0, z0) * (ax * ay * az);
-    if (xin) r += node(x1, y0, z0) * (bx * ay * az);
-    if (yin) r += node(x0, y1, z0) * (ax * by * az);
-    if (xin && yin) r += node(x1, y1, z0) * (bx * by * az);
-    if (zin) r += node(x0, y0, z1) * (ax * ay * bz);
-    if (xin && zin) r += node(x1, y0, z1) * (bx * ay * bz);
-    if (yin && zin) r += node(x0, y1, z1) * (ax * by * bz);
-    if (xin && yin && zin) r += node(x1, y1, z1) * (bx * by * bz);
-    val = r;
+    T ix[3], du[3], c[2][2][2], b[3];
+    bool in[3];
+    outside = locate(p, ix, du, in);
+    corners(ix, c, b);
+    const T az = T(1) - b[2], ay = T(1) - b[1];
+    const T v00 = c[0][0][0] * az + c[0][0][1] * b[2], v01 = c[0][1][0] * az + c[0][1][1] * b[2];
+    const T v10 = c[1][0][0] * az + c[1][0][1] * b[2], v11 = c[1][1][0] * az + c[1][1][1] * b[2];
+    val = (v00 * ay + v01 * b[1]) * (T(1) - b[0]) + (v10 * ay + v11 * b[1]) * b[0];
   }
 
   T value(const T p[3]) const { T v, o; sample(p, v, o); return v + o; }
 
   // value(p) and its derivative d value / d p (3), as autograd differentiates sample_local:
-  // the clamp to the box passes gradient strictly inside it, grid_sample's border clip passes
-  // it strictly inside [0, n - 1], the trilinear weights are differentiated with the corners
-  // fixed, and the distance to the box has gradient (u - uc) cell / |.| (0 at distance 0).
+  // the clamp to the box passes gradient strictly inside it, the trilinear weights are
+  // differentiated with the corners fixed, and the distance to the box has gradient
+  // (u - uc) cell / |.| (0 at distance 0).
   T value_grad(const T p[3], T grad[3]) const {
-    T ix[3], dix[3], du[3];
-    T out2 = 0;
-    for (int a = 0; a < 3; ++a) {
-      T u = (p[a] - origin[a]) / cell;
-      T uc = std::min(std::max(u, T(0)), extent[a]);
-      const T duc = (u > T(0) && u < extent[a]) ? T(1) : T(0);
-      du[a] = (u - uc) * cell;
-      out2 += du[a] * du[a];
-      T g = T(2) * uc / extent[a] - T(1);
-      T c = ((g + T(1)) / T(2)) * static_cast<T>(n[a] - 1);
-      const T dc = (c > T(0) && c < static_cast<T>(n[a] - 1)) ? T(1) : T(0);
-      ix[a] = std::min(static_cast<T>(n[a] - 1), std::max(c, T(0)));
-      // d ix / d p = clip' * (n - 1) / 2 * 2 / extent * clamp' / cell
-      dix[a] = dc * (static_cast<T>(n[a] - 1) / T(2)) * (T(2) / extent[a]) * duc / cell;
-    }
-    const T outside = std::sqrt(out2);
-    const Cell cl(ix, n);
-    const int64_t x0 = cl.x0, y0 = cl.y0, z0 = cl.z0, x1 = x0 + 1, y1 = y0 + 1, z1 = z0 + 1;
-    const T ax = cl.ax, bx = cl.bx, ay = cl.ay, by = cl.by, az = cl.az, bz = cl.bz;
-    const bool xin = cl.xin, yin = cl.yin, zin = cl.zin;
-    // Corner values (0 where grid_sample's corner falls outside the grid).
-    const T v000 = node(x0, y0, z0);
-    const T v100 = xin ? node(x1, y0, z0) : T(0);
-    const T v010 = yin ? node(x0, y1, z0) : T(0);
-    const T v110 = (xin && yin) ? node(x1, y1, z0) : T(0);
-    const T v001 = zin ? node(x0, y0, z1) : T(0);
-    const T v101 = (xin && zin) ? node(x1, y0, z1) : T(0);
-    const T v011 = (yin && zin) ? node(x0, y1, z1) : T(0);
-    const T v111 = (xin && yin && zin) ? node(x1, y1, z1) : T(0);
-    T r = 0;
-    r += v000 * (ax * ay * az);
-    r += v100 * (bx * ay * az);
-    r += v010 * (ax * by * az);
-    r += v110 * (bx * by * az);
-    r += v001 * (ax * ay * bz);
-    r += v101 * (bx * ay * bz);
-    r += v011 * (ax * by * bz);
-    r += v111 * (bx * by * bz);
+    T ix[3], du[3], c[2][2][2], b[3];
+    bool in[3];
+    const T outside = locate(p, ix, du, in);
+    corners(ix, c, b);
+    const T bx = b[0], by = b[1], bz = b[2], ax = T(1) - bx, ay = T(1) - by, az = T(1) - bz;
+    const T v000 = c[0][0][0], v100 = c[1][0][0], v010 = c[0][1][0], v110 = c[1][1][0];
+    const T v001 = c[0][0][1], v101 = c[1][0][1], v011 = c[0][1][1], v111 = c[1][1][1];
+    const T r = ((v000 * az + v001 * bz) * ay + (v010 * az + v011 * bz) * by) * ax +
+                ((v100 * az + v101 * bz) * ay + (v110 * az + v111 * bz) * by) * bx;
     const T gx = (v100 - v000) * ay * az + (v110 - v010) * by * az + (v101 - v001) * ay * bz + (v111 - v011) * by * bz;
     const T gy = (v010 - v000) * ax * az + (v110 - v100) * bx * az + (v011 - v001) * ax * bz + (v111 - v101) * bx * bz;
     const T gz = (v001 - v000) * ax * ay + (v101 - v100) * bx * ay + (v011 - v010) * ax * by + (v111 - v110) * bx * by;
     const T gi[3] = {gx, gy, gz};
     for (int a = 0; a < 3; ++a) {
-      grad[a] = gi[a] * dix[a];
+      grad[a] = in[a] ? gi[a] * inv_cell : T(0);
       if (outside > T(0)) grad[a] += du[a] / outside;  // du = 0 on axes inside the box
     }
     return r + outside;
@@ -213,6 +180,7 @@ std::vector<Grid<T>> make_grids(const std::vector<torch::Tensor>& grids, const t
       out[j].extent[a] = static_cast<T>(g.size(a) - 1);
     }
     out[j].cell = static_cast<T>(pc[j]);
+    out[j].inv_cell = static_cast<T>(1.0 / pc[j]);
   }
   return out;
 }
@@ -247,8 +215,8 @@ torch::Tensor lower_bounds(torch::Tensor x, torch::Tensor poses, std::vector<tor
 // The collision plan of liquidtwin/sim/collide.py (plan_collisions), same decisions:
 // object j takes part for particle i when lower_bound_ij < (reach_i + push_ij) + sweep_j +
 // margin_j, push_ij the largest sweep of another object i takes part in (grown to a fixed
-// point per particle); object j needs S_j = max(1, ceil((max_i (reach_i + push_ij) + sweep_j)
-// / thin_j)) pieces and particle i moves in max_j S_j of them (or `forced` when > 0), capped
+// point per particle); particle i moves in S_i = max over its objects j of
+// max(1, ceil((reach_i + push_ij + sweep_j) / thin_j)) pieces (or `forced` when > 0), capped
 // at max_pieces. Returns idx (R,), active (R, M) bool, pieces (R,), counts (S_max,)
 // (counts[s-1] = rows with >= s pieces), and the uncapped largest piece count (0-d).
 std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Tensor pose_a,
@@ -268,7 +236,7 @@ std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Ten
   TORCH_CHECK(pose_a.dim() == 2 && pose_a.size(0) == m && pose_a.size(1) == 7, "poses must be (M, 7)");
   TORCH_CHECK(sweep.numel() == m && margin.numel() == m && thin.numel() == m, "sweep, margin, thin must be (M,)");
   std::vector<uint8_t> act(n * m, 0);
-  std::vector<int64_t> count(n, 0), per_object(m, 0);
+  std::vector<int64_t> need(n, 0), count(n, 0);
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "collide_plan", [&] {
     using T = scalar_t;
     auto gs = make_grids<T>(grids, origins, cells);
@@ -277,8 +245,8 @@ std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Ten
     const T* pd = delta.data_ptr<T>();
     const T* sw = sweep.data_ptr<T>();
     const T* mg = margin.data_ptr<T>();
+    const double* th = thin.data_ptr<double>();
     const bool grow = m > 1 && std::any_of(sw, sw + m, [](T v) { return v > 0; });
-    std::vector<T> travel(n * m, T(0));
     at::parallel_for(0, n, 256, [&](int64_t b, int64_t e) {
       std::vector<T> start(m), push(m, T(0));
       std::vector<uint8_t> grown(m);
@@ -307,25 +275,20 @@ std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Ten
           if (same) break;
           std::copy(grown.begin(), grown.end(), a);
         }
-        for (int64_t j = 0; j < m; ++j) travel[i * m + j] = reach + push[j];
+        int64_t c = 0;  // this particle's pieces: each at most a third of every wall it can meet
+        for (int64_t j = 0; j < m; ++j) {
+          if (!a[j]) continue;
+          const T travel = reach + push[j];
+          const double s = std::ceil((static_cast<double>(travel) + static_cast<double>(sw[j])) / th[j]);
+          c = std::max<int64_t>(c, std::max<int64_t>(1, static_cast<int64_t>(s)));
+        }
+        need[i] = c;
       }
     });
-    for (int64_t j = 0; j < m; ++j) {
-      bool any = false;
-      T longest = 0;
-      for (int64_t i = 0; i < n; ++i)
-        if (act[i * m + j]) { longest = any ? std::max(longest, travel[i * m + j]) : travel[i * m + j]; any = true; }
-      if (any) {
-        const double need = std::ceil((static_cast<double>(longest) + static_cast<double>(sw[j])) /
-                                      thin.data_ptr<double>()[j]);
-        per_object[j] = std::max<int64_t>(1, static_cast<int64_t>(need));
-      }
-    }
   });
   int64_t most = 0, rows = 0;
   for (int64_t i = 0; i < n; ++i) {
-    int64_t c = 0;
-    for (int64_t j = 0; j < m; ++j) if (act[i * m + j]) c = std::max(c, per_object[j]);
+    int64_t c = need[i];
     if (c > 0 && forced > 0) c = forced;
     most = std::max(most, c);
     count[i] = std::min(c, max_pieces);
@@ -375,8 +338,9 @@ struct Mover {
   const std::vector<Motion<T>>& motion;
   const bool fixed;
   const T cd, dil;
-  std::vector<Frame<T>> fr;
+  std::vector<Frame<T>> fr, cache;
   std::vector<int64_t> act;
+  int64_t cached = -1;
 
   Mover(const std::vector<Grid<T>>& g, const std::vector<Motion<T>>& mo, bool fx, T c, T d)
       : gs(g), motion(mo), fixed(fx), cd(c), dil(d), fr(mo.size()) {}
@@ -387,12 +351,29 @@ struct Mover {
     for (int64_t j = 0; j < static_cast<int64_t>(motion.size()); ++j) if (row[j]) act.push_back(j);
   }
 
-  // Frames of the active objects at piece k of S (the end pose throughout when fixed).
+  // Frames of the active objects at piece k of S (the end pose throughout when fixed). Every
+  // object's frames at pieces 1 … S are made once per S (plan rows come sorted by S).
   void frames(int64_t k, int64_t S) {
-    for (int64_t j : act) {
-      if (fixed) motion[j].frame(T(1), true, fr[j]);
-      else motion[j].frame(static_cast<T>(static_cast<double>(k) / static_cast<double>(S)), k == S, fr[j]);
+    const int64_t m = static_cast<int64_t>(motion.size());
+    if (fixed) {
+      if (cached != 0) {
+        cache.resize(m);
+        for (int64_t j = 0; j < m; ++j) motion[j].frame(T(1), true, cache[j]);
+        cached = 0;
+      }
+      for (int64_t j : act) fr[j] = cache[j];
+      return;
     }
+    if (S != cached) {
+      cache.resize((S + 1) * m);
+      for (int64_t kk = 1; kk <= S; ++kk)
+        for (int64_t j = 0; j < m; ++j) {
+          motion[j].frame(static_cast<T>(static_cast<double>(kk) / static_cast<double>(S)), kk == S,
+                          cache[kk * m + j]);
+        }
+      cached = S;
+    }
+    for (int64_t j : act) fr[j] = cache[k * m + j];
   }
 
   // min over the active objects of the SDF at p, the nearest object in `arg` (the first on

@@ -13,10 +13,10 @@ Conventions shared with liquidtwin (they are the definition of the step, not its
 - poses are (tx, ty, tz, qx, qy, qz, qw), the quaternion normalised before use;
 - an SDF grid holds values[i, j, k] at origin + (i, j, k)·cell in the object frame; outside
   its box the value is the one at the nearest box point plus the distance to the box;
-- anti-clipping: a move is split into S pieces of at most a third of the thinnest wall
-  (particle displacement + object sweep), each followed by a push-out against the objects
-  posed at the matching fraction of their motion (lerp + nlerp); only particles whose SDF
-  lower bound says they could reach an object take part (this also fixes S).
+- anti-clipping: each particle's move is split into S_i pieces of at most a third of the
+  thinnest wall (its own displacement + object sweep), each followed by a push-out against
+  the objects posed at the matching fraction of their motion (lerp + nlerp); only particles
+  whose SDF lower bound says they could reach an object take part.
 """
 
 from __future__ import annotations
@@ -205,20 +205,23 @@ def collide_move(prm: Params, objects, x, delta, poses_a, poses_b, stats: dict |
     if active.size == 0:
         return out
     piece = PIECE_FRACTION * min(o.thickness for o in objects)
-    pieces = max(1, math.ceil((float(reach[active].max()) + sw) / piece))
-    pieces = min(pieces, prm.max_pieces)
+    counts = [min(max(1, math.ceil((float(r) + sw) / piece)), prm.max_pieces) for r in reach[active]]
+    counts = np.array(counts, dtype=np.int64)
     if stats is not None:
-        stats["max_pieces"] = max(stats.get("max_pieces", 0), pieces)
+        stats["max_pieces"] = max(stats.get("max_pieces", 0), int(counts.max()))
+        stats["piece_counts"] = stats.get("piece_counts", set()) | set(counts.tolist())
         stats["active"] = stats.get("active", 0) + int(active.size)
     dilation = 0.5 * min(o.cell for o in objects)
-    xa, da = x[active], delta[active] / pieces
-    for s in range(1, pieces + 1):
-        if s == pieces:
-            poses = [np.asarray(p, dtype=np.float64) for p in poses_b]
-        else:
-            poses = [lerp_pose(pa, pb, s / pieces) for pa, pb in zip(poses_a, poses_b)]
-        xa = push_out(xa + da, objects, poses, prm.collision_distance, dilation, stats)
-    out[active] = xa
+    for pieces in np.unique(counts):  # the particles split into the same number of pieces
+        rows = active[counts == pieces]
+        xa, da = x[rows], delta[rows] / pieces
+        for s in range(1, pieces + 1):
+            if s == pieces:
+                poses = [np.asarray(p, dtype=np.float64) for p in poses_b]
+            else:
+                poses = [lerp_pose(pa, pb, s / pieces) for pa, pb in zip(poses_a, poses_b)]
+            xa = push_out(xa + da, objects, poses, prm.collision_distance, dilation, stats)
+        out[rows] = xa
     return out
 
 

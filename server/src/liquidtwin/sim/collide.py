@@ -6,10 +6,11 @@ planned per object, then carried out piece by piece:
 * **Plan** (:func:`plan_collisions`, no gradients). Particle i takes part for object j only
   if a lower bound on its distance to j at the start pose is below its reach |delta_i|
   plus how far j sweeps, plus how far *other* objects it touches sweep (they can push it),
-  plus a margin of two of j's cells. Object j needs S_j pieces so that each piece (its
-  particles' longest move plus the sweeps) is at most a third of j's wall; a particle
-  moves in max S_j pieces over its objects. With one object this is exactly the old
-  global scheme.
+  plus a margin of two of j's cells. The particle moves in as many pieces as make each
+  piece (its own move plus those sweeps) at most a third of the wall of every object it
+  takes part for. A fast particle splits its own move only: before stop 48 one fast
+  particle near a wall set the piece count of every particle near that wall (3× the
+  pieces in a full-size pour).
 * **Move**. After every piece the particle is pushed out of its objects posed at the
   matching fraction of their motion, as :func:`~liquidtwin.sim.sdf.push_out` does:
   ``p += ReLU(c − SDF(p)) n̂`` with SDF = min over its objects and n̂ the normalised
@@ -128,12 +129,10 @@ def _plan_torch(objects, x, delta, pose_a, sweep, margin, thin, max_pieces, piec
     if rows.numel() == 0:
         return rows, active[rows], rows, (), 0
     active, travel = active[rows], (reach[:, None] + push)[rows]
-    per_object = torch.zeros(m, dtype=torch.int64, device=x.device)
-    for j in range(m):
-        if bool(active[:, j].any()):
-            longest = float(travel[:, j][active[:, j]].max())
-            per_object[j] = max(1, math.ceil((longest + float(sweep[j])) / thin[j]))
-    count = torch.where(active, per_object[None], 0).max(1).values
+    # Each particle's pieces: at most a third of every wall it can meet (in float64, as the C++).
+    need = torch.ceil((travel.double() + sweep.double()[None]) / torch.tensor(thin, dtype=torch.float64,
+                                                                              device=x.device)[None])
+    count = torch.where(active, need.clamp(min=1).to(torch.int64), 0).max(1).values
     if pieces:
         count = torch.full_like(count, int(pieces))
     most = int(count.max())
