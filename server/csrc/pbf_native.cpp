@@ -198,43 +198,61 @@ std::vector<torch::Tensor> sorted_neighbors(torch::Tensor x, double radius, int6
       }
     });
   }
+  // Half the pairs are searched: point i looks only at later sorted points j > i. The rows
+  // of a cell's 3×3 block come in key order (dz, dy), as do the sorted points, so rows 0–3
+  // (dz = −1, and dz = 0, dy = −1) hold only earlier points, row 4 (the cell's own) both,
+  // and rows 5–8 only later ones. Every pair found is then mirrored: each list is the
+  // earlier neighbours (in ascending order, from the mirror) then the later ones (ascending),
+  // the same list the full search gives.
   const double r2 = radius * radius;
   auto row_ptr_t = torch::zeros({n + 1}, torch::kInt64);
   int64_t* row_ptr = row_ptr_t.data_ptr<int64_t>();
   constexpr int64_t kBlock = 256;
   const int64_t nblocks = (n + kBlock - 1) / kBlock;
   std::vector<std::vector<int64_t>> found(nblocks);
+  std::vector<int64_t> later(n, 0);
   at::parallel_for(0, nblocks, 1, [&](int64_t b, int64_t e) {
     for (int64_t blk = b; blk < e; ++blk) {
       auto& buf = found[blk];
       size_t k = 0;
       for (int64_t i = blk * kBlock; i < std::min(n, (blk + 1) * kBlock); ++i) {
         const int64_t* r = &ranges[18 * cell_of[i]];
-        size_t candidates = 0;
-        for (int row = 0; row < 9; ++row) candidates += static_cast<size_t>(r[2 * row + 1] - r[2 * row]);
+        const int64_t own = std::max(r[8], i + 1);
+        size_t candidates = static_cast<size_t>(std::max<int64_t>(r[9] - own, 0));
+        for (int row = 5; row < 9; ++row) candidates += static_cast<size_t>(r[2 * row + 1] - r[2 * row]);
         if (buf.size() < k + candidates) buf.resize(std::max(2 * buf.size(), k + candidates));
         int64_t* out = buf.data();
         const size_t before = k;
         const double xi = sx[i], yi = sy[i], zi = sz[i];
-        for (int row = 0; row < 9; ++row) {
-          for (int64_t j = r[2 * row]; j < r[2 * row + 1]; ++j) {
+        for (int row = 4; row < 9; ++row) {
+          for (int64_t j = row == 4 ? own : r[2 * row]; j < r[2 * row + 1]; ++j) {
             const double ddx = xi - sx[j], ddy = yi - sy[j], ddz = zi - sz[j];
             out[k] = j;
-            k += (ddx * ddx + ddy * ddy + ddz * ddz < r2) & (j != i);
+            k += ddx * ddx + ddy * ddy + ddz * ddz < r2;
           }
         }
-        row_ptr[i + 1] = static_cast<int64_t>(k - before);
+        later[i] = static_cast<int64_t>(k - before);
       }
       buf.resize(k);
     }
   });
-  for (int64_t i = 0; i < n; ++i) row_ptr[i + 1] += row_ptr[i];
+  std::vector<int64_t> fill(n + 1, 0);  // earlier neighbours per point, then where they go
+  for (const auto& buf : found)
+    for (int64_t j : buf) ++fill[j];
+  for (int64_t i = 0; i < n; ++i) row_ptr[i + 1] = row_ptr[i] + fill[i] + later[i];
   auto col_t = torch::empty({row_ptr[n]}, torch::kInt64);
   int64_t* col = col_t.data_ptr<int64_t>();
-  at::parallel_for(0, nblocks, 1, [&](int64_t b, int64_t e) {
-    for (int64_t blk = b; blk < e; ++blk)
-      std::copy(found[blk].begin(), found[blk].end(), col + row_ptr[blk * kBlock]);
-  });
+  for (int64_t i = 0; i < n; ++i) fill[i] = row_ptr[i];
+  for (int64_t blk = 0, i = 0; blk < nblocks; ++blk) {  // i ascending: each list's earlier part ascends
+    const int64_t* u = found[blk].data();
+    for (; i < std::min(n, (blk + 1) * kBlock); ++i) {
+      int64_t* own = col + row_ptr[i + 1] - later[i];
+      for (int64_t t = 0; t < later[i]; ++t, ++u) {
+        col[fill[*u]++] = i;
+        own[t] = *u;
+      }
+    }
+  }
   return {order_t, row_ptr_t, col_t};
 }
 
