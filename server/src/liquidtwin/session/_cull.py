@@ -10,26 +10,31 @@ lost (:attr:`SessionEngine.lost_particles`).
 
 from __future__ import annotations
 
-import itertools
-
 import torch
 
-from ..sim import FluidState, quat_to_matrix
+from ..sim import FluidState
 
 #: How far below the lowest object a particle must be to be dropped, m.
 FALL_MARGIN_M = 0.1
 
 
 def floor_y(objects, poses: torch.Tensor) -> float:
-    """Lowest world y of any object's SDF box corner, m. ``objects``: SDFGrids; ``poses`` (M, 7)."""
+    """Lowest world y of any object's SDF box corner, m. ``objects``: SDFGrids; ``poses`` (M, 7).
+
+    World y is linear in the local point, y = R[1] · p + t_y, so over the box's corners its
+    minimum takes, per axis, the lower of the box's two ends times R[1, a] (float64, no
+    tensors: this runs every step)."""
     lowest = float("inf")
-    for grid, pose in zip(objects, poses):
-        lo = grid.origin.to(pose)
-        hi = lo + (torch.tensor(grid.values.shape, dtype=pose.dtype, device=pose.device) - 1) * grid.cell
-        corners = torch.stack([torch.stack([(lo, hi)[b][a] for a, b in enumerate(bits)])
-                               for bits in itertools.product((0, 1), repeat=3)])
-        world = corners @ quat_to_matrix(pose[3:]).T + pose[:3]
-        lowest = min(lowest, float(world[:, 1].min()))
+    for grid, pose in zip(objects, poses.detach().double().cpu().tolist()):
+        qx, qy, qz, qw = pose[3:]
+        nn = qx * qx + qy * qy + qz * qz + qw * qw
+        row = (2.0 * (qx * qy + qz * qw) / nn, 1.0 - 2.0 * (qx * qx + qz * qz) / nn, 2.0 * (qy * qz - qx * qw) / nn)
+        lo = grid.origin.detach().double().cpu().tolist()
+        y = pose[1]
+        for a in range(3):
+            hi = lo[a] + (grid.values.shape[a] - 1) * grid.cell
+            y += min(lo[a] * row[a], hi * row[a])
+        lowest = min(lowest, y)
     return lowest
 
 
