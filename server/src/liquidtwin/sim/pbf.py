@@ -322,10 +322,13 @@ class _Lists:
         return Neighbors(self.row_ptr, self.col, self.radius)
 
     def refresh(self, x: torch.Tensor) -> torch.Tensor | None:
-        """Rebuild when some particle moved more than skin/2; returns the new order or None."""
-        moved = (x.detach() - self.anchor).norm(dim=-1).max()
-        if float(moved) * 2.0 <= self.model.skin:
-            return None
+        """Rebuild when some particle moved more than skin/2; returns the new order or None.
+        With no skin the lists are rebuilt without looking (a rebuild after no move gives
+        the same lists)."""
+        if self.model.skin > 0:
+            moved = (x.detach() - self.anchor).norm(dim=-1).max()
+            if float(moved) * 2.0 <= self.model.skin:
+                return None
         self.rebuilds += 1
         return self._build(x)
 
