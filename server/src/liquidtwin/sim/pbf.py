@@ -314,7 +314,8 @@ class _Lists:
             order = cell_order(x, self.radius)
             nb = find_neighbors(x.detach()[order], None, self.radius)
             self.row_ptr, self.col = nb.row_ptr, nb.col
-        self.anchor = x.detach()[order]
+        if self.model.skin > 0:     # where the skin test measures moves from
+            self.anchor = x.detach()[order]
         return order
 
     @property
