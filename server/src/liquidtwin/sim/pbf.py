@@ -426,8 +426,10 @@ def step(model: FluidModel, state: FluidState, poses: torch.Tensor | None = None
     per = 1.0 if model.reference_iterations is None else model.reference_iterations / model.iterations
     coh = p.lambda_c.to(x) * (h * per)
     tens = p.lambda_s.to(x) * (h * per) / (rho0 * h**3)
-    for _ in range(model.iterations):
-        order = lists.refresh(x)
+    for it in range(model.iterations):
+        # The first iteration's positions are the ones just listed (now sorted): a rebuild
+        # would return the identity order and the same lists (the cell sort is stable).
+        order = lists.refresh(x) if it > 0 else None
         if order is not None:
             x, x0, ids = x[order], x0[order], ids[order]
         rho, count, nrm = lists.density_normals(x)
