@@ -54,3 +54,72 @@ def test_two_worker_processes_give_the_serial_report(tmp_path, monkeypatch):
 def test_jobs_must_be_a_positive_whole_number(jobs):
     with pytest.raises(ValueError, match="jobs"):
         Options(jobs=jobs)
+
+
+class _Pool:
+    """A stand-in for the worker pool: each task is answered at once, in the order given, and
+    every submission is logged with how many answers had been read back by then."""
+
+    def __init__(self, objective, done):
+        self.objective, self.done, self.log = objective, done, []
+
+    def apply_async(self, fn, args, callback, error_callback):
+        kind, ext, _ = args[0]
+        assert kind == "cells"
+        self.log.append((ext, self.done()))
+        callback((None, {analysis._key(ext): (ext, None)}))
+
+
+class _Cache:
+    """The evaluator's side of ``Workers.fit``: a cache of extension → loss."""
+
+    def __init__(self, objective):
+        self.objective, self.store, self.read = objective, {}, 0
+        self.key = staticmethod(analysis._key)
+
+    def has(self, ext):
+        return analysis._key(ext) in self.store
+
+    def merge(self, entries):
+        self.read += 1
+        for k, (ext, _) in entries.items():
+            assert k not in self.store, "a point was drawn twice"
+            self.store[k] = self.objective(ext)
+
+    def fit_loss(self, ext, data):
+        return self.store[analysis._key(ext)]
+
+    def entries(self, name):
+        return {}
+
+    def upper(self, name):
+        return None
+
+
+def test_points_of_a_search_are_drawn_at_once_and_the_fit_is_the_serial_one():
+    from liquidtwin.discrepancy.candidates import COARSE, FINE, fit_candidate
+    from liquidtwin.discrepancy.parallel import Workers
+    import math
+
+    def objective(ext):                 # smooth in the main value, minimum inside the grids
+        return sum((math.log(abs(v) + 1e-3) - 0.4) ** 2 for v in ext.params.values())
+
+    for rounds in (COARSE, FINE):
+        cache = _Cache(objective)
+        w = Workers.__new__(Workers)
+        w.ev, w.jobs = cache, 4
+        w.pool = _Pool(objective, lambda: cache.read)
+        w.fit([("drag", None), ("wind", None)], rounds, {}, None)
+        # drag's 4 grid points and wind's first 8 directions go out before any answer is read
+        # back (4 at a time: the jobs), and no point is drawn twice (``_Cache.merge``)
+        first = [e.name for e, seen in w.pool.log if seen == 0]
+        assert first == ["drag"] * 4
+        assert sum(1 for e, seen in w.pool.log if seen <= 4) >= 8
+        # the serial fits, run against what the workers drew, find every point drawn: same fit
+        for name in ("drag", "wind"):
+            def cached(ext):
+                assert cache.has(ext), f"{name}: the serial search wanted a point the scheduler did not draw"
+                return cache.store[analysis._key(ext)]
+            ext, loss, trace = fit_candidate(name, cached, {}, rounds)
+            assert loss == objective(ext) and len(trace) >= 4
+        assert len(cache.store) == len(w.pool.log)

@@ -169,6 +169,12 @@ class _Evaluator:
         self._cells.clear()
         self._iou.clear()
 
+    key = staticmethod(_key)
+
+    def has(self, ext: Extension) -> bool:
+        """Whether ``ext`` is drawn (cached) on the current frames."""
+        return _key(ext) in self._cells
+
     # Cache entries {key: (cells, iou)}, exchanged with worker processes (``parallel``).
     def entries(self, name: str) -> dict:
         """The cached evaluations of candidate ``name``."""

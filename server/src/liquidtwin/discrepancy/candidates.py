@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Generator
 
 import numpy as np
 
@@ -88,26 +88,112 @@ def _vertex(trace: list, log: bool) -> float | None:
     return math.exp(zv) if use_log else zv
 
 
+def drive(search: Generator, evaluate: Callable[[list], list]):
+    """Run a search generator (:func:`search`, :func:`_line_points`) to its end: every batch it
+    yields is answered with ``evaluate(batch)`` (a list of the same length); returns the
+    generator's value."""
+    try:
+        batch = next(search)
+        while True:
+            batch = search.send(list(evaluate(batch)))
+    except StopIteration as done:
+        return done.value
+
+
+def _line_points(run: Callable[[list], Generator], grid, log: bool, rounds: int = COARSE) -> Generator:
+    """:func:`_line` as a search generator over points x: ``run(xs)`` is a generator that
+    yields the batch for xs and returns their losses. The grid is one batch, each refinement
+    round's (up to two) new points another: the points of a batch do not depend on each other."""
+    trace = list(zip((float(g) for g in grid), (yield from run([float(g) for g in grid]))))
+    for _ in range(rounds):
+        xs = sorted(trace)
+        k = min(range(len(xs)), key=lambda i: xs[i][1])
+        mids = []
+        for j in (k - 1, k + 1):
+            if 0 <= j < len(xs):
+                a, b = xs[k][0], xs[j][0]
+                mid = math.sqrt(a * b) if (log and a > 0 and b > 0) else 0.5 * (a + b)
+                if all(abs(mid - t) > 1e-9 for t in [t[0] for t in trace] + mids):
+                    mids.append(mid)
+        if mids:
+            trace += list(zip(mids, (yield from run(mids))))
+    x, fx = min(trace, key=lambda t: t[1])
+    v = _vertex(trace, log) if rounds > COARSE else None
+    if v is not None:
+        x, fx = v, (yield from run([v]))[0]
+    return x, fx, trace
+
+
 def _line(f: Callable[[float], float], grid, log: bool, rounds: int = COARSE) -> tuple[float, float, list]:
     """Minimise f over ``grid`` then refine ``rounds`` times around the best point (bisecting
     towards both neighbours). Returns (x, f(x), trace): x is the best point of the trace after
     the coarse grid alone; after refinement, the parabola's minimum (:func:`_vertex`) where
     there is one."""
-    trace = [(float(g), f(float(g))) for g in grid]
-    for _ in range(rounds):
-        xs = sorted(trace)
-        k = min(range(len(xs)), key=lambda i: xs[i][1])
-        for j in (k - 1, k + 1):
-            if 0 <= j < len(xs):
-                a, b = xs[k][0], xs[j][0]
-                mid = math.sqrt(a * b) if (log and a > 0 and b > 0) else 0.5 * (a + b)
-                if all(abs(mid - t[0]) > 1e-9 for t in trace):
-                    trace.append((mid, f(mid)))
-    x, fx = min(trace, key=lambda t: t[1])
-    v = _vertex(trace, log) if rounds > COARSE else None
-    if v is not None:
-        x, fx = v, f(v)
-    return x, fx, trace
+    def run(xs):
+        return (yield xs)
+    return drive(_line_points(run, grid, log, rounds), lambda xs: [f(x) for x in xs])
+
+
+def search(name: str, base: dict, rounds: int = COARSE, upper: float | None = None) -> Generator:
+    """The fit of candidate ``name`` (:func:`fit_candidate`) as a generator: it yields batches
+    (lists) of Extensions whose fitting losses it needs, is sent their losses, and returns
+    (extension, its loss, trace). The extensions of one batch do not depend on each other's
+    losses, so a caller may evaluate them at once (``parallel``); the batches, and so the
+    result, are those of the serial fit."""
+    c = LIBRARY[name]
+    trace = []
+
+    def run(points: list) -> Generator:
+        """Evaluate params dicts ``points`` as one batch, recording them in the trace."""
+        exts = [_ext(name, base, **p) for p in points]
+        vals = [float(v) for v in (yield exts)]
+        trace.extend((dict(e.params), v) for e, v in zip(exts, vals))
+        return vals
+
+    def line(point: Callable[[float], dict], grid, log: bool) -> Generator:
+        return _line_points(lambda xs: run([point(x) for x in xs]), grid, log, rounds)
+
+    if name == "wind":
+        dirs = [2 * math.pi * k / WIND_DIRECTIONS for k in range(WIND_DIRECTIONS)]
+        a0 = c.grid[0]
+        scores = yield from run([dict(ax=a0 * math.cos(t), az=a0 * math.sin(t)) for t in dirs])
+        t = dirs[int(np.argmin(scores))]
+        # refine the azimuth between the best and its better neighbour, then the magnitude
+        k = int(np.argmin(scores))
+        nb = dirs[(k + 1) % WIND_DIRECTIONS] if scores[(k + 1) % WIND_DIRECTIONS] < scores[k - 1] else dirs[k - 1]
+        tm = math.atan2(math.sin(t) + math.sin(nb), math.cos(t) + math.cos(nb))
+        if (yield from run([dict(ax=a0 * math.cos(tm), az=a0 * math.sin(tm))]))[0] < min(scores):
+            t = tm
+        a, _, _ = yield from line(lambda a: dict(ax=a * math.cos(t), az=a * math.sin(t)), (0.5, a0, 2.4), True)
+        params = {"ax": a * math.cos(t), "az": a * math.sin(t)}
+    elif name == "leak":
+        r0 = c.grid[1]
+        scores = yield from run([dict(radius=r0, height_fraction=s[0], azimuth_deg=s[1]) for s in LEAK_SITES])
+        site = LEAK_SITES[int(np.argmin(scores))]          # the first of equal losses, as min() takes
+        r, _, _ = yield from line(lambda r: dict(radius=r, height_fraction=site[0], azimuth_deg=site[1]),
+                                  (0.003, 0.008), False)
+        params = {"radius": r, "height_fraction": site[0], "azimuth_deg": site[1]}
+    elif name == "camera_offset":
+        r = [0.0, 0.0, 0.0]
+        for k in range(1 + (rounds > COARSE)):         # coordinate descent over the three axes
+            for axis in range(3):
+                def point(v, axis=axis):
+                    rr = list(r)
+                    rr[axis] = v
+                    return dict(rx=rr[0], ry=rr[1], rz=rr[2])
+                grid = c.grid if k == 0 else (r[axis] - 0.6, r[axis] + 0.6)
+                v, _, _ = yield from line(point, tuple(grid) + (r[axis],), False)
+                r[axis] = v
+        params = {"rx": r[0], "ry": r[1], "rz": r[2]}
+    else:
+        grid = c.grid if upper is None else tuple(sorted({min(float(g), float(upper)) for g in c.grid}))
+        v, _, _ = yield from line(lambda v: {c.key: v}, grid, c.log)
+        params = {c.key: v}
+    if rounds <= COARSE:                               # coarse: the best point tried
+        params = min(trace, key=lambda t: t[1])[0]
+    ext = _ext(name, base, **params)
+    loss = float((yield [ext])[0])                     # cached by the analysis where tried
+    return ext, loss, trace
 
 
 def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict,
@@ -119,54 +205,7 @@ def fit_candidate(name: str, objective: Callable[[Extension], float], base: dict
     ``upper``: the largest value of a one-parameter candidate's main parameter that still
     changes the model (grid points above it are moved onto it), e.g. the fill error that fills
     the source to its rim."""
-    c = LIBRARY[name]
-    trace = []
-
-    def run(**params) -> float:
-        ext = _ext(name, base, **params)
-        val = float(objective(ext))
-        trace.append((dict(ext.params), val))
-        return val
-
-    if name == "wind":
-        dirs = [2 * math.pi * k / WIND_DIRECTIONS for k in range(WIND_DIRECTIONS)]
-        a0 = c.grid[0]
-        scores = [run(ax=a0 * math.cos(t), az=a0 * math.sin(t)) for t in dirs]
-        t = dirs[int(np.argmin(scores))]
-        # refine the azimuth between the best and its better neighbour, then the magnitude
-        k = int(np.argmin(scores))
-        nb = dirs[(k + 1) % WIND_DIRECTIONS] if scores[(k + 1) % WIND_DIRECTIONS] < scores[k - 1] else dirs[k - 1]
-        tm = math.atan2(math.sin(t) + math.sin(nb), math.cos(t) + math.cos(nb))
-        if run(ax=a0 * math.cos(tm), az=a0 * math.sin(tm)) < min(scores):
-            t = tm
-        a, _, _ = _line(lambda a: run(ax=a * math.cos(t), az=a * math.sin(t)), (0.5, a0, 2.4), True, rounds)
-        params = {"ax": a * math.cos(t), "az": a * math.sin(t)}
-    elif name == "leak":
-        r0 = c.grid[1]
-        site = min(LEAK_SITES, key=lambda s: run(radius=r0, height_fraction=s[0], azimuth_deg=s[1]))
-        r, _, _ = _line(lambda r: run(radius=r, height_fraction=site[0], azimuth_deg=site[1]), (0.003, 0.008), False,
-                        rounds)
-        params = {"radius": r, "height_fraction": site[0], "azimuth_deg": site[1]}
-    elif name == "camera_offset":
-        r = [0.0, 0.0, 0.0]
-        for k in range(1 + (rounds > COARSE)):         # coordinate descent over the three axes
-            for axis in range(3):
-                def f(v, axis=axis):
-                    rr = list(r)
-                    rr[axis] = v
-                    return run(rx=rr[0], ry=rr[1], rz=rr[2])
-                grid = c.grid if k == 0 else (r[axis] - 0.6, r[axis] + 0.6)
-                v, fv, tr = _line(f, tuple(grid) + (r[axis],), False, rounds)
-                r[axis] = v
-        params = {"rx": r[0], "ry": r[1], "rz": r[2]}
-    else:
-        grid = c.grid if upper is None else tuple(sorted({min(float(g), float(upper)) for g in c.grid}))
-        v, _, _ = _line(lambda v: run(**{c.key: v}), grid, c.log, rounds)
-        params = {c.key: v}
-    if rounds <= COARSE:                               # coarse: the best point tried
-        params = min(trace, key=lambda t: t[1])[0]
-    loss = float(objective(_ext(name, base, **params)))   # cached by the analysis where tried
-    return _ext(name, base, **params), loss, trace
+    return drive(search(name, base, rounds, upper), lambda exts: [objective(e) for e in exts])
 
 
 def tied_range(name: str, trace: list, base: dict | None = None, rtol: float = 1e-9) -> tuple[float, float] | None:

@@ -1,14 +1,21 @@
 """Model evaluations of a discrepancy analysis spread over worker processes.
 
 The analysis is a chain of searches (calibration, candidate fits, refinements, fits on the
-null realisations), and each search point is a rollout of the model plus its drawing; the
-searches of different candidates are independent. :class:`Workers` runs whole searches in
-``jobs`` spawned processes, each holding its own :class:`~.rollout.Simulator` of every
-episode, and hands back every evaluation a search made (coarse cells and pixel IOU per
-episode, keyed by the extension). The analysis merges them into its own cache and then runs
-its unchanged serial code, whose every evaluation is now a cache hit: the searches are
-deterministic, so they visit the same points, and the report is what the serial analysis
-gives (bit for bit when both run torch on one thread, as each worker does).
+null realisations), and each search point is a rollout of the model plus its drawing.
+:class:`Workers` runs them in ``jobs`` spawned processes, each holding its own
+:class:`~.rollout.Simulator` of every episode, and hands back every evaluation (coarse cells
+and pixel IOU per episode, keyed by the extension). The analysis merges them into its own
+cache and then runs its unchanged serial code, whose every evaluation is now a cache hit:
+the searches are deterministic, so they visit the same points, and the report is what the
+serial analysis gives (bit for bit when both run torch on one thread, as each worker does).
+
+Candidate fits are scheduled point by point (:meth:`Workers.fit`): the searches run in this
+process as generators (``candidates.search``) that yield batches of independent points, and
+each point is one task, given to the first free worker, follow-up points of a search ahead
+of fresh grid points. A search is then as long as its chain of batches, not its number of
+points, and the workers are not left idle while one long search (wind: 14 rollouts) ends.
+Observation candidates (time and camera offsets) re-draw one rollout, so their whole search
+stays one task.
 
 What crosses between the processes is the analysis's own data (episodes, extensions, numpy
 arrays) through ``multiprocessing``'s local pipes; nothing is read from outside.
@@ -16,7 +23,10 @@ arrays) through ``multiprocessing``'s local pipes; nothing is read from outside.
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import multiprocessing as mp
+import queue
 
 #: The worker's evaluator (one per process, built by :func:`_init`).
 _EV = None
@@ -64,6 +74,7 @@ class Workers:
 
     def __init__(self, ev, eps, frames, jobs: int, extra_iterations: int = 0):
         self.ev = ev
+        self.jobs = jobs
         self.pool = mp.get_context("spawn").Pool(jobs, initializer=_init,
                                                  initargs=(list(eps), list(frames), extra_iterations))
 
@@ -80,8 +91,65 @@ class Workers:
 
     def fit(self, searches, rounds: int, base: dict, fit: list) -> None:
         """Run the search of every (candidate name, observed cells) of ``searches`` on the
-        ``fit`` frames (into the cache)."""
-        self._map([("fit", n, rounds, dict(base), cells, fit, self.ev.entries(n)) for n, cells in searches])
+        ``fit`` frames (into the cache), point by point (module doc)."""
+        from .analysis import _Data
+        from .candidates import LIBRARY, search
+        ev = self.ev
+        ready: list = []                # heap of (-depth, seq, task, key): deeper searches first
+        seq = itertools.count()
+        inflight: set = set()           # keys being evaluated (an extension's, or a whole search's)
+        gens, datas, depths, waiting = {}, {}, {}, {}
+        done: queue.SimpleQueue = queue.SimpleQueue()
+
+        def want(ext, depth: int) -> None:
+            k = ev.key(ext)
+            if not ev.has(ext) and k not in inflight:
+                inflight.add(k)
+                heapq.heappush(ready, (-depth, next(seq), ("cells", ext, {}), k))
+
+        def advance(i: int, values) -> None:
+            """Send search i its batch's losses; queue what its next batch lacks."""
+            while True:
+                try:
+                    batch = gens[i].send(values)
+                except StopIteration:
+                    return
+                if all(ev.has(e) for e in batch):
+                    values = [ev.fit_loss(e, datas[i]) for e in batch]
+                    continue
+                waiting[i] = batch
+                depths[i] += 1
+                for e in batch:
+                    want(e, depths[i])
+                return
+
+        for i, (name, cells) in enumerate(searches):
+            if LIBRARY[name].observation:
+                heapq.heappush(ready, (-1, next(seq), ("fit", name, rounds, dict(base), cells, fit, ev.entries(name)),
+                                       ("search", i)))
+            else:
+                gens[i], datas[i], depths[i] = search(name, base, rounds, ev.upper(name)), _Data(cells, fit, None, None), 0
+        for i in list(gens):
+            advance(i, None)
+        running = 0
+        while ready or running:
+            while ready and running < self.jobs:
+                _, _, task, k = heapq.heappop(ready)
+                self.pool.apply_async(_run, (task,), callback=lambda r, k=k: done.put((k, r, None)),
+                                      error_callback=lambda e, k=k: done.put((k, None, e)))
+                running += 1
+            k, result, error = done.get()
+            running -= 1
+            if error is not None:
+                raise error
+            ev.merge(result[1])
+            inflight.discard(k)
+            for i, batch in list(waiting.items()):
+                if all(ev.has(e) for e in batch):
+                    del waiting[i]
+                    advance(i, [ev.fit_loss(e, datas[i]) for e in batch])
+        if waiting:                     # cannot happen: every wanted point was queued
+            raise RuntimeError(f"searches {sorted(waiting)} were left waiting")
 
     def null_cells(self, runs: int, seed: int, base, vary: bool = True) -> list:
         """:func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1."""
