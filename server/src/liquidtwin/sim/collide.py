@@ -24,6 +24,7 @@ planned per object, then carried out piece by piece:
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass
@@ -77,6 +78,14 @@ def _push_from_others(active: torch.Tensor, sweep: torch.Tensor) -> torch.Tensor
     return torch.where(first, top.values[:, 1:2], top.values[:, :1])
 
 
+@functools.lru_cache(maxsize=32)
+def _margins(objects: tuple, collision_distance: float, dtype, device) -> tuple[torch.Tensor, tuple]:
+    """Per object: the plan's margin (collision distance + two cells, m; (M,) tensor, read
+    only) and longest piece (a third of its thinnest wall, m)."""
+    margin = torch.tensor([collision_distance + 2.0 * o.cell for o in objects], dtype=dtype, device=device)
+    return margin, tuple(PIECE_FRACTION * o.thickness for o in objects)
+
+
 def plan_collisions(objects, x: torch.Tensor, delta: torch.Tensor, pose_a: torch.Tensor, pose_b: torch.Tensor,
                     collision_distance: float, max_pieces: int, native: bool = False,
                     pieces: int | None = None) -> Plan | None:
@@ -94,8 +103,7 @@ def plan_collisions(objects, x: torch.Tensor, delta: torch.Tensor, pose_a: torch
     pose_a, pose_b = pose_a.detach().to(x.dtype), pose_b.detach().to(x.dtype)
     m, dev = len(objects), x.device
     sweep = torch.zeros(m, dtype=x.dtype, device=dev) if fixed else sweep_bound(objects, pose_a, pose_b).to(x)
-    margin = torch.tensor([collision_distance + 2.0 * o.cell for o in objects], dtype=x.dtype, device=dev)
-    thin = [PIECE_FRACTION * o.thickness for o in objects]
+    margin, thin = _margins(tuple(objects), float(collision_distance), x.dtype, dev)
     if native:
         idx, active, count, counts, most = fused.collide_plan(x, delta, pose_a, objects, sweep, margin, thin,
                                                               max_pieces, pieces or 0)

@@ -8,6 +8,8 @@ the pure-torch reference in the tests. Used on CPU tensors when the extension is
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 try:  # built by server/setup.py at install time
@@ -80,23 +82,42 @@ class _Viscosity(torch.autograd.Function):
         return gx, gv, None, None, None
 
 
+def _tracked(*tensors) -> bool:
+    """Whether autograd records a call on ``tensors`` (else the kernels are called directly:
+    the same results without an autograd node per call)."""
+    return torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
+
+
 def density_normals(x, row_ptr, col, h):
     """(ρ (N,), neighbour count (N,), surface normal n (N, 3)) — see pbf.density_normals."""
+    if not _tracked(x):
+        return tuple(_native.density_normals(x.contiguous(), row_ptr, col, float(h)))
     return _DensityNormals.apply(x, row_ptr, col, float(h))
 
 
 def pressure_tension(x, omega, nrm, row_ptr, col, h):
     """(pressure sum (N, 3), tension sum (N, 3)) — see pbf.pressure_tension."""
+    if not _tracked(x, omega, nrm):
+        return tuple(_native.pressure_tension(x.contiguous(), row_ptr, col, float(h), omega, nrm))
     return _PressureTension.apply(x, omega, nrm, row_ptr, col, float(h))
 
 
 def viscosity(x, v, row_ptr, col, h):
     """Σ_j W_ρ(d_ij)(v_j − v_i) (N, 3) — see pbf.viscosity_sum."""
+    if not _tracked(x, v):
+        return _native.viscosity(x.contiguous(), row_ptr, col, float(h), v)
     return _Viscosity.apply(x, v, row_ptr, col, float(h))
 
 
 def _grids(objects, dtype):
-    """SDF values (nx, ny, nz) in ``dtype`` (cached per grid), origins (M, 3) and cells (M,)."""
+    """SDF values (nx, ny, nz) in ``dtype``, origins (M, 3) and cells (M,) of ``objects``; the
+    same tensors for the same objects (every collision call of every step asks again; the
+    kernels only read them)."""
+    return _grids_of(tuple(objects), dtype)
+
+
+@functools.lru_cache(maxsize=32)
+def _grids_of(objects: tuple, dtype):
     grids = [o._converted("values", "cpu", dtype) for o in objects]
     origins = torch.stack([o._converted("origin", "cpu", torch.float64).detach() for o in objects])
     cells = torch.tensor([float(o.cell) for o in objects], dtype=torch.float64)
@@ -162,4 +183,10 @@ def collide_plan(x, delta, pose_a, objects, sweep, margin, thin, max_pieces, for
     Returns idx (R,), active (R, M) bool, pieces (R,), counts (S,), uncapped max (0-d)."""
     grids, origins, cells = _grids(objects, x.dtype)
     return _native.collide_plan(x.detach().contiguous(), delta.detach(), pose_a.detach(), grids, origins, cells,
-                                sweep, margin, torch.tensor(thin, dtype=torch.float64), int(max_pieces), int(forced))
+                                sweep, margin, _as_tensor(tuple(thin)), int(max_pieces), int(forced))
+
+
+@functools.lru_cache(maxsize=64)
+def _as_tensor(values: tuple) -> torch.Tensor:
+    """A float64 tensor of ``values`` (the same one for the same values; read only)."""
+    return torch.tensor(values, dtype=torch.float64)
