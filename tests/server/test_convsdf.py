@@ -110,3 +110,29 @@ def test_degenerate_objects_and_poses_are_rejected():
         check_poses(torch.tensor([[0, 0, float("nan"), 0, 0, 0, 1.0]]), 1)
     with pytest.raises(ValueError, match="zero norm"):
         check_poses(torch.zeros(1, 7), 1)
+
+
+def test_per_object_set_cache_is_by_identity_and_dies_with_its_objects():
+    import gc
+    import weakref
+
+    from liquidtwin.sim.sdf import cached_for
+    a = shapes.open_box_grid((0.03, 0.03), 0.06, 0.006, cell=0.004)
+    b = shapes.open_box_grid((0.03, 0.03), 0.06, 0.006, cell=0.004)
+    made = []
+
+    def make():
+        made.append(1)
+        return object()
+    first = cached_for((a, b), "k", make)
+    assert cached_for((a, b), "k", make) is first and len(made) == 1      # made once
+    assert cached_for((b, a), "k", make) is not first                       # another set (order counts)
+    assert cached_for((a, b), "other", make) is not first and len(made) == 3
+    gone = weakref.ref(b)
+    del b
+    gc.collect()
+    assert gone() is not None          # a's entries keep b: its id cannot be reused meanwhile
+    gone_a = weakref.ref(a)
+    del a
+    gc.collect()
+    assert gone_a() is None and gone() is None   # nothing module-level keeps either alive

@@ -24,7 +24,6 @@ planned per object, then carried out piece by piece:
 
 from __future__ import annotations
 
-import functools
 import math
 import warnings
 from dataclasses import dataclass
@@ -33,7 +32,7 @@ import torch
 import torch.nn.functional as F
 
 from . import fused
-from .sdf import _world_to_local, interpolate_poses, quat_to_matrix, sweep_bound
+from .sdf import _world_to_local, cached_for, interpolate_poses, quat_to_matrix, sweep_bound
 
 PIECE_FRACTION = 1.0 / 3.0
 """Anti-clipping pieces (particle move + object sweeps) are at most this fraction of an
@@ -78,12 +77,13 @@ def _push_from_others(active: torch.Tensor, sweep: torch.Tensor) -> torch.Tensor
     return torch.where(first, top.values[:, 1:2], top.values[:, :1])
 
 
-@functools.lru_cache(maxsize=32)
 def _margins(objects: tuple, collision_distance: float, dtype, device) -> tuple[torch.Tensor, tuple]:
     """Per object: the plan's margin (collision distance + two cells, m; (M,) tensor, read
-    only) and longest piece (a third of its thinnest wall, m)."""
-    margin = torch.tensor([collision_distance + 2.0 * o.cell for o in objects], dtype=dtype, device=device)
-    return margin, tuple(PIECE_FRACTION * o.thickness for o in objects)
+    only) and longest piece (a third of its thinnest wall, m); made once per object set."""
+    def make():
+        margin = torch.tensor([collision_distance + 2.0 * o.cell for o in objects], dtype=dtype, device=device)
+        return margin, tuple(PIECE_FRACTION * o.thickness for o in objects)
+    return cached_for(objects, ("plan margins", collision_distance, dtype, device), make)
 
 
 def plan_collisions(objects, x: torch.Tensor, delta: torch.Tensor, pose_a: torch.Tensor, pose_b: torch.Tensor,

@@ -12,6 +12,8 @@ import functools
 
 import torch
 
+from .sdf import cached_for
+
 try:  # built by server/setup.py at install time
     from liquidtwin import _native
 except ImportError:  # pragma: no cover - exercised only on installs without a compiler
@@ -113,15 +115,14 @@ def _grids(objects, dtype):
     """SDF values (nx, ny, nz) in ``dtype``, origins (M, 3) and cells (M,) of ``objects``; the
     same tensors for the same objects (every collision call of every step asks again; the
     kernels only read them)."""
-    return _grids_of(tuple(objects), dtype)
+    objects = tuple(objects)
 
-
-@functools.lru_cache(maxsize=32)
-def _grids_of(objects: tuple, dtype):
-    grids = [o._converted("values", "cpu", dtype) for o in objects]
-    origins = torch.stack([o._converted("origin", "cpu", torch.float64).detach() for o in objects])
-    cells = torch.tensor([float(o.cell) for o in objects], dtype=torch.float64)
-    return grids, origins, cells
+    def make():
+        grids = [o._converted("values", "cpu", dtype) for o in objects]
+        origins = torch.stack([o._converted("origin", "cpu", torch.float64).detach() for o in objects])
+        cells = torch.tensor([float(o.cell) for o in objects], dtype=torch.float64)
+        return grids, origins, cells
+    return cached_for(objects, ("native grids", dtype), make)
 
 
 def segment_blocked(start, end, poses, objects, tolerance: float, min_step: float):

@@ -64,6 +64,19 @@ def interpolate_poses(p0: torch.Tensor, p1: torch.Tensor, s: float) -> torch.Ten
     return torch.cat([t, q / q.norm(dim=-1, keepdim=True)], -1)
 
 
+def cached_for(objects: tuple, key, make):
+    """``make()`` made once for exactly these ``objects`` (by identity) and kept on the first
+    one, so it lives as long as they do (a module-level cache would keep every session's
+    grids alive). The entry holds the other objects, so their ids cannot be reused by new
+    objects while it exists."""
+    k = (key, tuple(id(o) for o in objects))
+    hit = objects[0]._cache.get(k)
+    if hit is None:
+        hit = (objects[1:], make())
+        objects[0]._cache[k] = hit
+    return hit[1]
+
+
 @dataclass(frozen=True, eq=False)
 class SDFGrid:
     """A signed distance field sampled on a regular grid in the object frame.
