@@ -60,8 +60,8 @@ class _Pool:
     """A stand-in for the worker pool: each task is answered at once, in the order given, and
     every submission is logged with how many answers had been read back by then."""
 
-    def __init__(self, objective, done):
-        self.objective, self.done, self.log = objective, done, []
+    def __init__(self, done):
+        self.done, self.log = done, []
 
     def apply_async(self, fn, args, callback, error_callback):
         kind, ext, _ = args[0]
@@ -108,7 +108,7 @@ def test_points_of_a_search_are_drawn_at_once_and_the_fit_is_the_serial_one():
         cache = _Cache(objective)
         w = Workers.__new__(Workers)
         w.ev, w.jobs = cache, 4
-        w.pool = _Pool(objective, lambda: cache.read)
+        w.pool = _Pool(lambda: cache.read)
         w.fit([("drag", None), ("wind", None)], rounds, {}, None)
         # drag's 4 grid points and wind's first 8 directions go out before any answer is read
         # back (4 at a time: the jobs), and no point is drawn twice (``_Cache.merge``)

@@ -9,6 +9,7 @@ import torch
 import liquidtwin as lt
 from liquidtwin.sim import fused
 from liquidtwin.sim.fused import _native
+from liquidtwin.sim.neighbors import cell_order, find_neighbors
 from liquidtwin.sim.kernels import kernel_value
 
 
@@ -68,6 +69,31 @@ def test_native_dense_grid_and_ranked_cells_give_the_same_lists(seed):
     order_f, row_ptr_f, col_f = fused.sorted_neighbors(far, r)
     assert order_f[-1] == len(x) and torch.equal(order_f[:-1], order)
     assert torch.equal(row_ptr_f[:-1], row_ptr) and torch.equal(col_f, col)
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_listing_sorted_points_again_gives_the_identity_and_the_same_lists(native):
+    """The PBF step's first solver iteration reuses the lists of the positions just sorted
+    (``pbf.step``): that holds because sorting already sorted points is the identity (the cell
+    sort is stable) and their lists come out the same, on both search paths and precisions."""
+    if native and os.environ.get("LIQUIDTWIN_NO_NATIVE") == "1":
+        pytest.skip("installed without the C++ extension on purpose")
+    g = torch.Generator().manual_seed(4)
+    r = 0.021
+    for dtype in (torch.float32, torch.float64):
+        x = (torch.rand(1200, 3, generator=g, dtype=torch.float64) * 0.12).to(dtype)
+        x[5:9] = x[40]                                   # coincident points share a cell
+        if native:
+            for max_dense in (-1, 0):                    # dense grid and ranked cells
+                order, row_ptr, col = _native.sorted_neighbors(x, r, max_dense)
+                again = _native.sorted_neighbors(x[order], r, max_dense)
+                assert torch.equal(again[0], torch.arange(len(x)))
+                assert torch.equal(again[1], row_ptr) and torch.equal(again[2], col)
+        else:
+            xs = x[cell_order(x, r)]
+            assert torch.equal(cell_order(xs, r), torch.arange(len(x)))
+            a, b = find_neighbors(xs, None, r), find_neighbors(xs[cell_order(xs, r)], None, r)
+            assert torch.equal(a.row_ptr, b.row_ptr) and torch.equal(a.col, b.col)
 
 
 @pytest.mark.skipif(os.environ.get("LIQUIDTWIN_NO_NATIVE") == "1", reason="installed without the C++ extension on purpose")

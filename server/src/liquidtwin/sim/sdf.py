@@ -68,7 +68,9 @@ def cached_for(objects: tuple, key, make):
     """``make()`` made once for exactly these ``objects`` (by identity) and kept on the first
     one, so it lives as long as they do (a module-level cache would keep every session's
     grids alive). The entry holds the other objects, so their ids cannot be reused by new
-    objects while it exists."""
+    objects while it exists. No objects: made afresh."""
+    if not objects:
+        return make()
     k = (key, tuple(id(o) for o in objects))
     hit = objects[0]._cache.get(k)
     if hit is None:
