@@ -9,13 +9,17 @@ seed 4 — the scene of ``bench/discrepancy_speed.py`` at full size (generated i
 Rolls the recording's stated model through its poses (``discrepancy.rollout.Simulator``, one
 torch thread unless ``OMP_NUM_THREADS`` says otherwise) for ``--steps`` steps (default: all),
 timing the steps and, separately, the neighbour-list builds (``sim.pbf._Lists``): how many
-per step, and their share of the time. Prints one JSON record and appends it to
+per step, and their share of the time. ``--profile`` runs it under cProfile and adds the time
+spent inside the C++ kernels (``liquidtwin._native``) and outside them (Python and small
+torch ops; cProfile slows the calls a little). Prints one JSON record and appends it to
 bench/history.jsonl.
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import pstats
 import time
 from pathlib import Path
 
@@ -31,6 +35,7 @@ def main() -> None:
     p.add_argument("--recording", type=Path, default=DEFAULT)
     p.add_argument("--steps", type=int, default=None, help="steps to roll (default: the whole recording)")
     p.add_argument("--no-history", action="store_true", help="print only; do not append to bench/history.jsonl")
+    p.add_argument("--profile", action="store_true", help="split the time into the C++ kernels and the rest (cProfile)")
     args = p.parse_args()
     from liquidtwin.discrepancy.episode import load_episode
     from liquidtwin.discrepancy.model import Extension
@@ -59,18 +64,28 @@ def main() -> None:
         return out
 
     pbf._Lists._build = timed
+    prof = cProfile.Profile() if args.profile else None
     try:
         t = time.perf_counter()
+        if prof is not None:
+            prof.enable()
         traj = sim.rollout(Extension(), steps=steps)
+        if prof is not None:
+            prof.disable()
         wall = time.perf_counter() - t
     finally:
         pbf._Lists._build = original
+    split = {}
+    if prof is not None:
+        stats = pstats.Stats(prof).stats        # {(file, line, name): (cc, nc, tottime, cumtime, callers)}
+        kernels = sum(v[2] for k, v in stats.items() if "liquidtwin._native" in k[2])
+        split = {"kernels_s": round(kernels, 2), "outside_kernels_s": round(wall - kernels, 2)}
     n0 = int(traj.x[0].shape[0])
     particle_steps = sum(int(x.shape[0]) for x in traj.x[1:])
     emit({"what": "pour_rollout", "recording": args.recording.name, "particles": n0, "steps": steps,
           "iterations": int(sim.model.iterations), "threads": torch.get_num_threads(), "seconds": round(wall, 2),
           "particle_steps_per_s": round(particle_steps / wall), "neighbor_builds_per_step": round(builds / steps, 2),
-          "neighbor_build_share": round(build_s / wall, 3)}, history=not args.no_history)
+          "neighbor_build_share": round(build_s / wall, 3), **split}, history=not args.no_history)
 
 
 if __name__ == "__main__":
