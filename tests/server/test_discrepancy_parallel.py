@@ -1,9 +1,17 @@
 """Discrepancy discovery in worker processes (``Options.jobs``) gives the serial report: the
 workers run the same searches, the analysis replays them from their evaluations."""
 
+import multiprocessing as mp
+import os
+import signal
+import threading
+import time
+from concurrent.futures import Future
+
 import pytest
 import torch
 from blind_cases import record
+from worker_watch import no_workers_left, within
 
 from liquidtwin.discrepancy import Options, analyse
 from liquidtwin.discrepancy import analysis
@@ -50,6 +58,31 @@ def test_two_worker_processes_give_the_serial_report(tmp_path, monkeypatch):
     assert parallel["options"]["jobs"] == 2 and parallel["evaluations"] >= serial["evaluations"]
 
 
+def test_a_worker_killed_mid_analysis_stops_it_with_a_clear_error(tmp_path):
+    from liquidtwin.procs import WorkerDied
+    path = record("none", tmp_path)
+    opts = Options(candidates=("drag", "wind"), top=2, null_runs=1, level_runs=2, bootstrap=100, jobs=2)
+    assert no_workers_left()
+    killed = []
+
+    def kill_one_when_busy():           # as the out-of-memory killer would, a few s into the work
+        end = time.monotonic() + 120
+        while time.monotonic() < end:
+            workers = mp.active_children()
+            if len(workers) == 2:
+                time.sleep(3.0)
+                os.kill(workers[0].pid, signal.SIGKILL)
+                killed.append(workers[0].pid)
+                return
+            time.sleep(0.05)
+    threading.Thread(target=kill_one_when_busy, daemon=True).start()
+    out = within(240, lambda: analyse([path], options=opts))
+    assert killed, "the analysis ended before a worker could be killed"
+    assert isinstance(out.get("error"), WorkerDied), out
+    assert "discrepancy analysis" in str(out["error"])
+    assert no_workers_left()            # the other worker was stopped too
+
+
 @pytest.mark.parametrize("jobs", [0, -1, 1.5, True])
 def test_jobs_must_be_a_positive_whole_number(jobs):
     with pytest.raises(ValueError, match="jobs"):
@@ -63,11 +96,13 @@ class _Pool:
     def __init__(self, done):
         self.done, self.log = done, []
 
-    def apply_async(self, fn, args, callback, error_callback):
-        kind, ext, _ = args[0]
+    def submit(self, fn, task):
+        kind, ext, _ = task
         assert kind == "cells"
         self.log.append((ext, self.done()))
-        callback((None, {analysis._key(ext): (ext, None)}))
+        future = Future()
+        future.set_result((None, {analysis._key(ext): (ext, None)}))
+        return future
 
 
 class _Cache:

@@ -55,7 +55,7 @@ def load_demos(motions: list[int], quick: bool, seed: int, horizon: int, step_si
     """The demonstrations of ``motions`` (and the model they ran in), from the cache or by MPC."""
     from tqdm.auto import tqdm
 
-    from ..evaluate.tracking import map_jobs
+    from ..procs import map_jobs
     from ..sim import FluidState
 
     def path(m):

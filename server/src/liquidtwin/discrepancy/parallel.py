@@ -18,15 +18,21 @@ Observation candidates (time and camera offsets) re-draw one rollout, so their w
 stays one task.
 
 What crosses between the processes is the analysis's own data (episodes, extensions, numpy
-arrays) through ``multiprocessing``'s local pipes; nothing is read from outside.
+arrays) through ``multiprocessing``'s local pipes; nothing is read from outside. A worker that
+dies (killed, out of memory) stops the analysis with :class:`~liquidtwin.procs.WorkerDied`
+instead of leaving it waiting for the lost answer (``liquidtwin.procs``).
 """
 
 from __future__ import annotations
 
 import heapq
 import itertools
-import multiprocessing as mp
 import queue
+
+from .. import procs
+
+#: What a dead worker's error names.
+WHAT = "the discrepancy analysis"
 
 #: The worker's evaluator (one per process, built by :func:`_init`).
 _EV = None
@@ -75,12 +81,12 @@ class Workers:
     def __init__(self, ev, eps, frames, jobs: int, extra_iterations: int = 0):
         self.ev = ev
         self.jobs = jobs
-        self.pool = mp.get_context("spawn").Pool(jobs, initializer=_init,
-                                                 initargs=(list(eps), list(frames), extra_iterations))
+        self.pool = procs.pool(jobs, initializer=_init, initargs=(list(eps), list(frames), extra_iterations))
 
     def _map(self, tasks: list) -> list:
         out = []
-        for result, fresh in self.pool.imap(_run, tasks):
+        for future in [self.pool.submit(_run, t) for t in tasks]:
+            result, fresh = procs.result(future, WHAT)
             self.ev.merge(fresh)
             out.append(result)
         return out
@@ -135,14 +141,12 @@ class Workers:
         while ready or running:
             while ready and running < self.jobs:
                 _, _, task, k = heapq.heappop(ready)
-                self.pool.apply_async(_run, (task,), callback=lambda r, k=k: done.put((k, r, None)),
-                                      error_callback=lambda e, k=k: done.put((k, None, e)))
+                # a dead worker fails its future too, so this wait always ends
+                self.pool.submit(_run, task).add_done_callback(lambda f, k=k: done.put((k, f)))
                 running += 1
-            k, result, error = done.get()
+            k, future = done.get()
             running -= 1
-            if error is not None:
-                raise error
-            ev.merge(result[1])
+            ev.merge(procs.result(future, WHAT)[1])
             inflight.discard(k)
             for i, batch in list(waiting.items()):
                 if all(ev.has(e) for e in batch):
@@ -158,7 +162,6 @@ class Workers:
     def close(self, abort: bool = False) -> None:
         """Wait for the workers to exit (``abort``: stop them now, e.g. after an error)."""
         if abort:
-            self.pool.terminate()
+            procs.stop(self.pool)
         else:
-            self.pool.close()
-        self.pool.join()
+            self.pool.shutdown(wait=True)

@@ -15,11 +15,12 @@ the case's name, so ``evaluate tracking``, ``fill`` and ``volume`` generate them
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+
+from ..procs import map_jobs
 
 #: Effects a benchmark world may carry (mild: lower quarter of the realistic range). Not the
 #: geometry, initial-state or observation faults — those are what `discrepancy` is for.
@@ -164,7 +165,6 @@ def generate_all(fn, work: list, *, jobs: int, desc: str, progress: bool) -> Non
             fn(w)
             bar.update()
     else:
-        with mp.get_context("spawn").Pool(jobs) as pool:
-            for _ in pool.imap_unordered(fn, work):
-                bar.update()
+        for _ in map_jobs(fn, work, jobs, ordered=False, what=desc):
+            bar.update()
     bar.close()

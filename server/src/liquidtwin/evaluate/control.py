@@ -158,7 +158,7 @@ def run_pour_target(work) -> dict:
 def run_pouring(args) -> int:
     from tqdm.auto import tqdm
 
-    from .tracking import map_jobs
+    from ..procs import map_jobs
     if args.targets is None:
         targets = list(POUR_TARGETS_ML)
     else:
@@ -222,7 +222,7 @@ def _targets(args) -> list[int]:
 def run_catching(args, targets) -> int:
     from tqdm.auto import tqdm
 
-    from .tracking import map_jobs
+    from ..procs import map_jobs
     trained, policy_file = [], None
     if args.controller == "policy":
         from ..control.policy import PolicyError, load_policy
@@ -261,7 +261,7 @@ def run_catching(args, targets) -> int:
 def run(args) -> int:
     from tqdm.auto import tqdm
 
-    from .tracking import map_jobs
+    from ..procs import map_jobs
     if args.step_size is None:
         args.step_size = 0.1 if args.scene == "catching" else 0.5
     if not args.seconds > 0 or args.horizon < 1 or not args.step_size > 0:

@@ -21,7 +21,7 @@ import numpy as np
 
 from .benchmark import generate_all, missing_from
 from .cli import add_common, save_results
-from .tracking import map_jobs
+from ..procs import map_jobs
 
 HELP = "blind hidden-effect benchmark of discrepancy discovery: confusion matrix and parameter errors"
 PARAM_TOLERANCE = 0.25

@@ -131,7 +131,7 @@ def run(args) -> int:
 
     from ..perception.data import load_split, make_dataset
     from .cli import save_results
-    from .tracking import map_jobs
+    from ..procs import map_jobs
     from ..perception.inputs import parse_augment
     grid = _grid(args)
     try:

@@ -114,7 +114,7 @@ def run_case(work) -> dict:
 def run(args) -> int:
     from tqdm.auto import tqdm
 
-    from .tracking import map_jobs
+    from ..procs import map_jobs
     losses = [s.strip() for s in args.loss.split(",") if s.strip()]
     from ..sysid import LOSSES
     if not losses or set(losses) - set(LOSSES):

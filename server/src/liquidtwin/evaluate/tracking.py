@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..procs import map_jobs
 from .benchmark import ensure
 from .cli import CASES_HELP, add_common, add_model_options, case_range, save_results, selected_cases, with_model_options
 from .replay import MODES, engine_for, replay
@@ -317,16 +318,6 @@ def _evaluate_one(job) -> dict:
     path, trackers, frames, iterations, masks, detector, pose_filter = job
     return evaluate_case(Path(path), trackers, frames=frames, iterations=iterations, masks=masks,
                          detector=None if detector is None else Path(detector), pose_filter=pose_filter)
-
-
-def map_jobs(fn, work: list, jobs: int):
-    """fn over work in order, in ``jobs`` processes (1: here)."""
-    if jobs <= 1 or len(work) <= 1:
-        yield from map(fn, work)
-        return
-    import multiprocessing as mp
-    with mp.get_context("spawn").Pool(min(jobs, len(work))) as pool:
-        yield from pool.imap(fn, work)
 
 
 def series_mean(s: dict | None, min_px: int) -> float | None:

@@ -1,0 +1,71 @@
+"""Worker processes (``liquidtwin.procs``): results in order, a task's own error comes back as
+it is, and a worker that dies stops the run with a clear error instead of a wait forever
+(which is what ``multiprocessing.Pool`` does: the killed worker's task is never answered)."""
+
+import os
+import time
+
+import pytest
+from worker_watch import no_workers_left, within
+
+from liquidtwin.procs import WorkerDied, map_jobs
+
+
+def _square_and_pid(x):
+    return x * x, os.getpid()
+
+
+def _fail_on_three(x):
+    if x == 3:
+        raise ValueError(f"task {x} refused")
+    return x
+
+
+def _die_on_three(x):
+    if x == 3:
+        os._exit(7)             # as a kill or the out-of-memory killer would: no answer, no exception
+    time.sleep(0.2)
+    return x
+
+
+def _slow(x):
+    if x:
+        time.sleep(60)
+    return x
+
+
+def test_results_come_in_order_from_other_processes_or_as_they_finish():
+    out = list(map_jobs(_square_and_pid, range(6), 2))
+    assert [r for r, _ in out] == [0, 1, 4, 9, 16, 25]
+    assert os.getpid() not in {pid for _, pid in out}
+    unordered = [r for r, _ in map_jobs(_square_and_pid, range(6), 2, ordered=False)]
+    assert sorted(unordered) == [0, 1, 4, 9, 16, 25]
+    # one job, or one item: here, in this process
+    assert {pid for _, pid in map_jobs(_square_and_pid, range(3), 1)} == {os.getpid()}
+    assert no_workers_left()
+
+
+def test_an_error_raised_by_a_task_comes_back_as_it_is():
+    with pytest.raises(ValueError, match="task 3 refused"):
+        list(map_jobs(_fail_on_three, range(6), 2))
+    assert no_workers_left()
+
+
+def test_a_worker_that_dies_stops_the_run_with_a_clear_error():
+    out = within(60, lambda: list(map_jobs(_die_on_three, range(8), 2, what="the test run")))
+    assert isinstance(out.get("error"), WorkerDied), out
+    message = str(out["error"])
+    assert "the test run" in message and "fewer jobs" in message
+    assert no_workers_left()
+
+
+def test_leaving_early_stops_the_workers_at_once():
+    def first():
+        results = map_jobs(_slow, range(4), 2)
+        value = next(results)           # task 0 answers at once; 1 and 2 sleep a minute
+        results.close()
+        return value
+    t = time.monotonic()
+    assert within(30, first) == {"value": 0}
+    assert time.monotonic() - t < 30
+    assert no_workers_left()
