@@ -64,14 +64,20 @@ struct Grid {
 
   // Trilinear value at the clamped point and the distance from the point to the grid box.
   void sample(const T p[3], T& val, T& outside) const {
-    T ix[3], du[3], c[2][2][2], b[3];
+    T ix[3], du[3];
     bool in[3];
     outside = locate(p, ix, du, in);
+    val = trilinear(ix);
+  }
+
+  // The trilinear value at node index ix (clamped to the box).
+  T trilinear(const T ix[3]) const {
+    T c[2][2][2], b[3];
     corners(ix, c, b);
     const T az = T(1) - b[2], ay = T(1) - b[1];
     const T v00 = c[0][0][0] * az + c[0][0][1] * b[2], v01 = c[0][1][0] * az + c[0][1][1] * b[2];
     const T v10 = c[1][0][0] * az + c[1][0][1] * b[2], v11 = c[1][1][0] * az + c[1][1][1] * b[2];
-    val = (v00 * ay + v01 * b[1]) * (T(1) - b[0]) + (v10 * ay + v11 * b[1]) * b[0];
+    return (v00 * ay + v01 * b[1]) * (T(1) - b[0]) + (v10 * ay + v11 * b[1]) * b[0];
   }
 
   T value(const T p[3]) const { T v, o; sample(p, v, o); return v + o; }
@@ -101,6 +107,16 @@ struct Grid {
     return r + outside;
   }
   T lower_bound(const T p[3]) const { T v, o; sample(p, v, o); return std::max(o, v - o); }
+
+  // lower_bound(p) where that is below `enough`; else some value >= enough (the distance to
+  // the grid box when that alone reaches it: lower_bound >= it, and the 8 corners go unread).
+  T lower_bound_below(const T p[3], T enough) const {
+    T ix[3], du[3];
+    bool in[3];
+    const T o = locate(p, ix, du, in);
+    if (o >= enough) return o;
+    return std::max(o, trilinear(ix) - o);
+  }
 };
 
 // Rigid frame: local = R^T (p - t).
@@ -247,6 +263,12 @@ std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Ten
     const T* mg = margin.data_ptr<T>();
     const double* th = thin.data_ptr<double>();
     const bool grow = m > 1 && std::any_of(sw, sw + m, [](T v) { return v > 0; });
+    // The most push object j can get from the others (0 when nothing grows): a lower bound at
+    // or above ((reach + most) + sweep) + margin keeps j out in every round, as float sums
+    // round monotonically, so its exact value is not needed.
+    std::vector<T> most_push(m, T(0));
+    for (int64_t j = 0; grow && j < m; ++j)
+      for (int64_t k = 0; k < m; ++k) if (k != j) most_push[j] = std::max(most_push[j], sw[k]);
     at::parallel_for(0, n, 256, [&](int64_t b, int64_t e) {
       std::vector<T> start(m), push(m, T(0));
       std::vector<uint8_t> grown(m);
@@ -257,7 +279,7 @@ std::vector<torch::Tensor> plan(torch::Tensor x, torch::Tensor delta, torch::Ten
         for (int64_t j = 0; j < m; ++j) {
           T loc[3];
           frames[j].local(px + 3 * i, loc);
-          start[j] = gs[j].lower_bound(loc);
+          start[j] = gs[j].lower_bound_below(loc, ((reach + most_push[j]) + sw[j]) + mg[j]);
           push[j] = 0;
           a[j] = start[j] < ((reach + push[j]) + sw[j]) + mg[j];
         }

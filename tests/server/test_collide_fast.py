@@ -150,6 +150,43 @@ def test_native_path_matches_torch_path(objects, dtype, tol):
     assert float((a - b).abs().max()) < tol
 
 
+@needs_native
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_plan_skips_only_objects_out_of_reach_even_after_a_push(objects, dtype):
+    """The C++ planner reads no SDF corners where a point's distance to an object's grid box
+    alone keeps the object out of reach, with the largest push another object could add.
+    Points between the turning cup and the bowl, outside both boxes: many reach the bowl
+    only through the cup's sweep (the push), and the plan is still the torch planner's."""
+    g = np.random.default_rng(5)
+    n = 3000
+    x = torch.as_tensor(g.uniform([0.0, -0.01, -0.15], [0.26, 0.2, 0.15], (n, 3)), dtype=dtype)
+    dirs = torch.as_tensor(g.normal(size=(n, 3)), dtype=dtype)
+    delta = dirs / dirs.norm(dim=1, keepdim=True) * torch.as_tensor(g.uniform(0.0, 0.02, (n, 1)), dtype=dtype)
+    pa, pb = _poses(_turn(0.0)).to(dtype), _poses(_turn(0.35, shift=(0.004, 0.002, 0.0))).to(dtype)
+    m = _model(objects)
+    plan = collide.plan_collisions(objects, x, delta, pa, pb, m.collision_distance, m.max_pieces, native=True)
+    ref = collide.plan_collisions(objects, x, delta, pa, pb, m.collision_distance, m.max_pieces, native=False)
+    for a, b in ((plan.idx, ref.idx), (plan.active, ref.active), (plan.pieces, ref.pieces)):
+        assert torch.equal(a, b)
+    assert plan.counts == ref.counts
+    # what the test rests on: the bowl (fixed, no sweep of its own) taken part in only
+    # because the cup's sweep pushes, by points outside its grid box
+    sweep = sweep_bound(objects, pa, pb).to(dtype)
+    assert float(sweep[0]) > 0 and float(sweep[1]) == 0
+    bowl = objects[1]
+    lo = bowl.origin.to(dtype)
+    hi = lo + (torch.tensor(bowl.values.shape, dtype=dtype) - 1) * bowl.cell
+    local = _world_to_local(x, pa[1])
+    box = torch.maximum(lo - local, local - hi).clamp(min=0).norm(dim=1)
+    reach = delta.norm(dim=1)
+    margin = m.collision_distance + 2.0 * bowl.cell
+    on_bowl = torch.zeros(n, dtype=torch.bool)
+    on_bowl[plan.idx] = plan.active[:, 1]
+    pushed_in = on_bowl & (box >= reach + margin)
+    assert int(pushed_in.sum()) > 50
+    assert int((~on_bowl & (box >= reach + float(sweep[0]) + margin)).sum()) > 500   # skipped
+
+
 def test_per_object_activity_changes_nothing_against_the_old_global_scheme(objects):
     x, delta, pa, pb = _scene(objects, torch.float64, seed=1)
     model = _model(objects, backend="torch")
