@@ -426,6 +426,11 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     base, calib = calibrate(sims, ev, pool, data) if opt.calibrate else (Extension(), [])
     timing["calibrate"] = time.perf_counter() - t
 
+    # The null realisations (3) need only the calibrated base: the workers draw them while
+    # this process measures the residuals and replays the tracker (2).
+    runs = max(opt.null_runs, opt.level_runs) if opt.null_runs else 0
+    pending = pool.null_cells(runs, opt.seed, base, opt.null_vary) if pool is not None else None
+
     # 2. what is wrong
     t = time.perf_counter()
     base_loss = ev.losses(base, data.cells)
@@ -442,8 +447,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     # 3. the null realisations: is the residual real? (labels "unexplained" against "none")
     t = time.perf_counter()
     null_base, null_cells = [], []
-    runs = max(opt.null_runs, opt.level_runs) if opt.null_runs else 0
-    realisations = (pool.null_cells(runs, opt.seed, base, opt.null_vary) if pool is not None else
+    realisations = (pending() if pending is not None else
                     [_null_cells(sims, frames, base, run, opt.seed, opt.null_vary) for run in range(runs)])
     held_base, blocks = _held(base_loss, data)
     for cells in realisations:

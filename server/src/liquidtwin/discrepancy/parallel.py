@@ -83,17 +83,23 @@ class Workers:
         self.jobs = jobs
         self.pool = procs.pool(jobs, initializer=_init, initargs=(list(eps), list(frames), extra_iterations))
 
-    def _map(self, tasks: list) -> list:
-        out = []
-        for future in [self.pool.submit(_run, t) for t in tasks]:
-            result, fresh = procs.result(future, WHAT)
-            self.ev.merge(fresh)
-            out.append(result)
-        return out
+    def _start(self, tasks: list):
+        """Hand ``tasks`` to the workers now; returns a call that waits for their results (in
+        order), merging the evaluations they made."""
+        futures = [self.pool.submit(_run, t) for t in tasks]
+
+        def wait() -> list:
+            out = []
+            for future in futures:
+                result, fresh = procs.result(future, WHAT)
+                self.ev.merge(fresh)
+                out.append(result)
+            return out
+        return wait
 
     def draw(self, exts) -> None:
         """Evaluate every extension of ``exts`` (into the cache)."""
-        self._map([("cells", e, {}) for e in exts])
+        self._start([("cells", e, {}) for e in exts])()
 
     def fit(self, searches, rounds: int, base: dict, fit: list) -> None:
         """Run the search of every (candidate name, observed cells) of ``searches`` on the
@@ -155,9 +161,10 @@ class Workers:
         if waiting:                     # cannot happen: every wanted point was queued
             raise RuntimeError(f"searches {sorted(waiting)} were left waiting")
 
-    def null_cells(self, runs: int, seed: int, base, vary: bool = True) -> list:
-        """:func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1."""
-        return self._map([("null", r, seed, base, vary, {}) for r in range(runs)])
+    def null_cells(self, runs: int, seed: int, base, vary: bool = True):
+        """Start :func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1; returns a call that
+        waits for them (the list, in run order), so this process can work meanwhile."""
+        return self._start([("null", r, seed, base, vary, {}) for r in range(runs)])
 
     def close(self, abort: bool = False) -> None:
         """Wait for the workers to exit (``abort``: stop them now, e.g. after an error)."""
