@@ -69,3 +69,16 @@ def test_leaving_early_stops_the_workers_at_once():
     assert within(30, first) == {"value": 0}
     assert time.monotonic() - t < 30
     assert no_workers_left()
+
+
+def test_the_cli_reports_a_dead_worker_in_one_line(monkeypatch, capsys):
+    import dataclasses
+
+    from liquidtwin import cli
+
+    def dies(args):
+        raise WorkerDied("a worker process of the discrepancy analysis died without answering")
+    monkeypatch.setitem(cli.COMMANDS, "discrepancy", dataclasses.replace(cli.COMMANDS["discrepancy"], run=dies))
+    assert cli.main(["discrepancy", "rec.mcap", "--out", "report"]) == 3
+    err = capsys.readouterr().err
+    assert err.strip() == "liquidtwin discrepancy: a worker process of the discrepancy analysis died without answering"

@@ -218,11 +218,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``liquidtwin`` console script; returns the exit code."""
+    from .procs import WorkerDied
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in COMMANDS and COMMANDS[argv[0]].passthrough:
-        return int(COMMANDS[argv[0]].run(argv[1:]) or 0)
-    args = build_parser().parse_args(argv)
-    return int(COMMANDS[args.command].run(args) or 0)
+    try:
+        if argv and argv[0] in COMMANDS and COMMANDS[argv[0]].passthrough:
+            return int(COMMANDS[argv[0]].run(argv[1:]) or 0)
+        args = build_parser().parse_args(argv)
+        return int(COMMANDS[args.command].run(args) or 0)
+    except WorkerDied as exc:           # any command's --jobs workers: say so, no traceback
+        print(f"liquidtwin {argv[0]}: {exc}", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":
