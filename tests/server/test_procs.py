@@ -65,9 +65,7 @@ def test_leaving_early_stops_the_workers_at_once():
         value = next(results)           # task 0 answers at once; 1 and 2 sleep a minute
         results.close()
         return value
-    t = time.monotonic()
-    assert within(30, first) == {"value": 0}
-    assert time.monotonic() - t < 30
+    assert within(30, first) == {"value": 0}       # not the minute the sleeping tasks would take
     assert no_workers_left()
 
 

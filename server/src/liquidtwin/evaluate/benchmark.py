@@ -160,11 +160,6 @@ def generate_all(fn, work: list, *, jobs: int, desc: str, progress: bool) -> Non
     if not work:
         return
     bar = tqdm(total=len(work), desc=desc, unit="rec", disable=not progress)
-    if jobs <= 1:
-        for w in work:
-            fn(w)
-            bar.update()
-    else:
-        for _ in map_jobs(fn, work, jobs, ordered=False, what=desc):
-            bar.update()
+    for _ in map_jobs(fn, work, jobs, ordered=False, what=desc):     # 1 job: here, in order
+        bar.update()
     bar.close()
