@@ -325,3 +325,61 @@ def test_golden_pan_puddle_is_measured(capsys):
     est, true = float(last[4]), float(last[7])
     rmse = float(out.split("RMSE")[1].split()[0])
     assert true > 15 and est > 10 and abs(est - true) < 9.0 and rmse < 4.0, out
+
+
+def _moved(mask: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """``mask`` moved by (dy, dx) blocks, zero-filled."""
+    out = np.zeros_like(mask)
+    h, w = mask.shape
+    out[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] = mask[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)]
+    return out
+
+
+def _brute_placed(template, interior, obs, region, reach):
+    """The best log likelihood of ``template`` over every move within ``reach`` that keeps 90 %
+    of it on ``region``, by explicit loops (the reference for the FFT placements)."""
+    lp = np.log([0.9, 0.1, 0.2, 0.8])
+    P, n_obs = interior.sum(), (obs & interior).sum()
+    scores = []
+    for dy in range(-reach[0], reach[0] + 1):
+        for dx in range(-reach[1], reach[1] + 1):
+            t = _moved(template, dy, dx)
+            if (t & region).sum() < 0.9 * template.sum():
+                continue
+            n_exp = (t & interior).sum()
+            n11 = (t & interior & obs).sum()
+            n01, n10 = n_exp - n11, n_obs - n11
+            scores.append(n11 * lp[0] + n01 * lp[1] + n10 * lp[2] + (P - n11 - n01 - n10) * lp[3])
+    return max(scores)
+
+
+def test_placed_likelihood_equals_brute_force_moves(oblique):
+    """Whole masks moved up to 15 % of the interior's extent (FFT correlations) score as an
+    explicit loop over the moves says; with no shift (the default) the likelihood is the
+    fixed-place one."""
+    _, _, e = oblique
+    rng = np.random.default_rng(3)
+    obs = _moved(e.liquid[14], 3, -4) ^ (rng.random(e.interior.shape) < 0.1)
+    ll = log_likelihood(e.liquid, e.interior, obs, shift=0.15)
+    ys, xs = np.nonzero(e.interior)
+    reach = (int(0.15 * (np.ptp(ys))), int(0.15 * (np.ptp(xs))))
+    for k in (0, 5, 14, 20, 24):
+        want = _brute_placed(e.liquid[k], e.interior, obs, e.interior, reach)
+        assert ll[k] == pytest.approx(want, rel=1e-12), k
+    fixed = log_likelihood(e.liquid, e.interior, obs)             # the default: no moves
+    for k in (5, 14):
+        assert fixed[k] == pytest.approx(_brute_placed(e.liquid[k], e.interior, obs, e.interior, (0, 0)), rel=1e-12)
+    with pytest.raises(ValueError, match="shift"):
+        log_likelihood(e.liquid, e.interior, obs, shift=-0.1)
+
+
+def test_a_sloshing_surface_moved_sideways_still_reads_its_volume(oblique):
+    """The liquid of bin 14 seen 3 blocks up and 4 left of where the level plane puts it (a
+    sloshing surface), 10 % of the blocks flipped: the likelihood with moves (shift 0.15) peaks
+    at bin 14; scored only where the plane puts it (the default), it does not."""
+    _, _, e = oblique
+    rng = np.random.default_rng(4)
+    obs = _moved(e.liquid[14], -3, -4) & e.interior
+    obs ^= rng.random(obs.shape) < 0.1
+    assert int(np.argmax(log_likelihood(e.liquid, e.interior, obs, shift=0.15))) == 14
+    assert int(np.argmax(log_likelihood(e.liquid, e.interior, obs))) != 14

@@ -103,8 +103,10 @@ class MaskVolumes:
     """
 
     def __init__(self, names, objects, containers, occluders, total_ml: float, spacing: float, fills: dict,
-                 surface_offset_spacings: float | None = None):
+                 surface_offset_spacings: float | None = None, shift: float | None = None):
         from ..volumes import MIN_DEPTH_SPACINGS, SURFACE_OFFSET_SPACINGS, LevelTable, VolumeFilter, scaled_transition
+        from ..volumes.hmm import SHIFT_SHARE
+        self._shift = SHIFT_SHARE if shift is None else float(shift)
         off = (SURFACE_OFFSET_SPACINGS if surface_offset_spacings is None else float(surface_offset_spacings)) * spacing
         self._names = tuple(names)
         self._tables, self._filters, self._prior = {}, {}, {}
@@ -167,7 +169,8 @@ class MaskVolumes:
             else:
                 for _ in range(min(MAX_PREDICT, self._mask_frames - self._steps_at[name])):
                     b = filt.predict(b)
-            self._belief[name] = filt.update(b, log_likelihood(e.liquid, e.interior, obs, fractions=e.fractions))
+            self._belief[name] = filt.update(b, log_likelihood(e.liquid, e.interior, obs, fractions=e.fractions,
+                                                                  shift=self._shift))
             self._steps_at[name] = self._mask_frames
         self.last_ms = 1e3 * (time.perf_counter() - start)
 
