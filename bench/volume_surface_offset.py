@@ -52,7 +52,7 @@ def rmse_per_offset(path: Path, offsets, shifts=(0.0,)) -> dict:
             est.append(fills.get("target", 0.0) if v is None else v)
         err = np.asarray(est) - truth
         out[off, shift] = (float(np.sqrt(np.mean(err[start:] ** 2))) if start < len(err) else float("nan"),
-                    float(np.sqrt(np.mean(err ** 2))))
+                           float(np.sqrt(np.mean(err ** 2))))
     return out
 
 

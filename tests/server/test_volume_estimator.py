@@ -383,3 +383,13 @@ def test_a_sloshing_surface_moved_sideways_still_reads_its_volume(oblique):
     obs ^= rng.random(obs.shape) < 0.1
     assert int(np.argmax(log_likelihood(e.liquid, e.interior, obs, shift=0.15))) == 14
     assert int(np.argmax(log_likelihood(e.liquid, e.interior, obs))) != 14
+
+
+def test_session_mask_volumes_take_the_shift_and_refuse_a_bad_one(tapered):
+    from liquidtwin.session._volumes import MaskVolumes
+    args = (["cup"], [tapered], ["cup"], [], 50.0, 0.005, {})
+    assert MaskVolumes(*args)._shift == 0.0                       # the default: SPEC's flat surface
+    assert MaskVolumes(*args, shift=0.15)._shift == 0.15
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="shift"):
+            MaskVolumes(*args, shift=bad)

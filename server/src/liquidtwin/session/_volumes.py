@@ -107,6 +107,8 @@ class MaskVolumes:
         from ..volumes import MIN_DEPTH_SPACINGS, SURFACE_OFFSET_SPACINGS, LevelTable, VolumeFilter, scaled_transition
         from ..volumes.hmm import SHIFT_SHARE
         self._shift = SHIFT_SHARE if shift is None else float(shift)
+        if not (math.isfinite(self._shift) and 0 <= self._shift <= 1):
+            raise ValueError(f"shift must be a share in [0, 1], got {shift}")
         off = (SURFACE_OFFSET_SPACINGS if surface_offset_spacings is None else float(surface_offset_spacings)) * spacing
         self._names = tuple(names)
         self._tables, self._filters, self._prior = {}, {}, {}
