@@ -45,6 +45,8 @@ def _placements(templates: np.ndarray, images: list, reach: tuple) -> list:
     exact integer counts of bool arrays (by FFT, zero-padded so nothing wraps)."""
     K, h, w = templates.shape
     ry, rx = reach
+    if ry == rx == 0:                                      # one place: plain counts
+        return [(templates & img[None]).sum((1, 2))[:, None, None] for img in images]
     shape = (h + ry + 1, w + rx + 1)
     ft = np.conj(np.fft.rfft2(templates.astype(np.float64), s=shape))
     out = []
