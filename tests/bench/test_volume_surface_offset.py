@@ -1,7 +1,8 @@
-"""bench/volume_surface_offset.py: at offset 0 it reproduces the mask-model RMSE of ``liquidtwin
-evaluate volume`` on the same recording (it runs the session's filter without the simulation),
-and on a quick pour, whose target volumes all lie in the bowl's thinnest-layer pool, an offset
-changes nothing; negative offsets are refused."""
+"""bench/volume_surface_offset.py: at offset 0 and shift 0 it reproduces the mask-model RMSE of
+``liquidtwin evaluate volume`` on the same recording (it runs the session's filter without the
+simulation), and on a quick pour, whose target volumes all lie in the bowl's thinnest-layer
+pool, neither an offset nor a shift (which moves only whole surfaces) changes anything;
+negative offsets and shifts outside [0, 1] are refused."""
 
 import sys
 from pathlib import Path
@@ -24,13 +25,14 @@ def quick_pour(tmp_path_factory):
 
 def test_offset_zero_is_the_benchmarks_mask_column_and_quick_pools_ignore_the_offset(quick_pour):
     from liquidtwin.evaluate.volume import case_rmse, evaluate_case
-    got = rmse_per_offset(quick_pour, [0.0, 0.5])
+    got = rmse_per_offset(quick_pour, [0.0, 0.5], [0.0, 0.15])
     want = case_rmse(evaluate_case(quick_pour, ["open_loop"]))["mask"]
-    assert got[0.0] == pytest.approx((want["target pour"], want["target all"]), rel=1e-9)
-    assert got[0.5] == got[0.0]
+    assert got[0.0, 0.0] == pytest.approx((want["target pour"], want["target all"]), rel=1e-9)
+    assert got[0.5, 0.0] == got[0.0, 0.0] == got[0.0, 0.15] == got[0.5, 0.15]
 
 
-def test_negative_offsets_are_refused(quick_pour, monkeypatch):
-    monkeypatch.setattr(sys, "argv", ["volume_surface_offset.py", str(quick_pour), "--offsets", "-0.1"])
+@pytest.mark.parametrize("args", [["--offsets", "-0.1"], ["--shifts", "1.5"]])
+def test_negative_offsets_and_big_shifts_are_refused(quick_pour, monkeypatch, args):
+    monkeypatch.setattr(sys, "argv", ["volume_surface_offset.py", str(quick_pour)] + args)
     with pytest.raises(SystemExit):
         main()
