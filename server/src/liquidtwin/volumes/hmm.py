@@ -105,10 +105,7 @@ def log_likelihood(expected_liquid: np.ndarray, interior: np.ndarray, observed: 
         n01, n10 = n_exp - n11, n_obs - n11
         return n11 * lp[0] + n01 * lp[1] + n10 * lp[2] + (P - n11 - n01 - n10) * lp[3]
 
-    empty = float(score(0, 0))                             # an empty template: nothing expected
-    if P == 0:
-        return np.full(K, empty)
-    out = np.full(K, empty)
+    out = np.full(K, float(score(0, 0)))                   # a bin whose mask is empty here: nothing expected
     ei = e[:, interior]
     n_mask = ei.sum(1)
     pool = (f < 1) & (n_mask > 0)
