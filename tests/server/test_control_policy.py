@@ -204,6 +204,15 @@ def test_command_line_errors_are_clear(tmp_path):
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "plate", "--served", "-5",
             "--out", str(tmp_path / "out"))
     assert r.returncode != 0 and "--served takes frames per second > 0" in r.stderr
+    r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "plate", "--lookahead", "-1",
+            "--out", str(tmp_path / "out"))
+    assert r.returncode != 0 and "--lookahead takes seconds >= 0" in r.stderr
+    r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "catching", "--lookahead", "1",
+            "--out", str(tmp_path / "out"))
+    assert r.returncode != 0 and "--lookahead sets the offline plate MPC's loss" in r.stderr
+    r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "plate", "--served", "30", "--lookahead", "1",
+            "--out", str(tmp_path / "out"))
+    assert r.returncode != 0 and "--lookahead sets the offline plate MPC's loss" in r.stderr
     r = run("-m", "liquidtwin.control.train_policy", "--out", str(tmp_path / "p.pt"), "--motions", "9")
     assert r.returncode == 2 and "source motions 0-7" in r.stderr
     r = run("-m", "liquidtwin.control.train_policy", "--help")

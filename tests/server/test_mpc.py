@@ -1,6 +1,7 @@
 """MPC through SPNets (issue 7): the gradient with respect to every planned control against
 finite differences, the normalised step and the limits, the plate's tilt quaternions against
-an independent composition, and a short plate run that moves the liquid towards its target."""
+an independent composition, how fast the plate loss asks to send the liquid, and a short plate
+run that moves the liquid towards its target."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ import pytest
 import torch
 
 from liquidtwin.control import MPC, ControlError
-from liquidtwin.control.plate import MAX_RATE, MAX_TILT, plate_scene, plate_space, run_plate, target_point, \
-    tilt_quaternion
+from liquidtwin.control.plate import LOOKAHEAD_S, MAX_RATE, MAX_TILT, SEND_RATE_ML_S, lookahead_for, plate_scene, \
+    plate_space, run_plate, send_loss, target_point, tilt_quaternion
 from liquidtwin.scenes.fill import fill_container
 from liquidtwin.sim import make_state, quat_to_matrix
 from liquidtwin.sim.sdf import quat_from_axis_angle
@@ -81,6 +82,37 @@ def test_update_moves_every_control_by_the_step_and_shifts_the_plan(plate):
         MPC(model, plate_space(setup), lambda s, k, q: s.x.sum(), horizon=0)
     with pytest.raises(ControlError, match="target"):
         run_plate(setup, model, state, 8, seconds=0.1)
+
+
+def test_the_send_loss_wants_each_particle_to_reach_the_aim_in_the_lookahead():
+    """For a particle d from the aim moving straight at it, the loss is least at speed
+    d / lookahead: the lookahead sets how fast the liquid is sent."""
+    aim = torch.tensor([0.3, 0.1, -0.2], dtype=torch.float64)
+    start = torch.tensor([[0.1, 0.15, 0.0]], dtype=torch.float64)
+    d = float((aim - start).norm())
+    towards = (aim - start) / d
+    speeds = torch.linspace(0.0, 2.0, 2001, dtype=torch.float64)
+    q = torch.zeros(2, dtype=torch.float64)
+    for lookahead in (0.25, 1.5):
+        loss = send_loss(aim, upright=0.0, lookahead_s=lookahead)
+        values = [float(loss(make_state(start, v * towards), 0, q)) for v in speeds]
+        best = float(speeds[int(np.argmin(values))])
+        assert best == pytest.approx(d / lookahead, abs=1e-3), (lookahead, best, d / lookahead)
+
+
+def test_more_liquid_is_sent_more_slowly(plate):
+    """The lookahead is LOOKAHEAD_S, stretched to volume / SEND_RATE_ML_S: the quick plate
+    scene's liquid keeps 0.25 s, the full scene's (1,092 particles) gets ~1.5 s."""
+    _, model, state = plate
+    quick_ml = state.x.shape[0] * model.particle_volume * 1e6
+    assert lookahead_for(quick_ml) == LOOKAHEAD_S == 0.25
+    assert lookahead_for(0.0) == LOOKAHEAD_S
+    assert lookahead_for(1092 * model.particle_volume * 1e6) == pytest.approx(1092 * model.particle_volume * 1e6 / 120.0)
+    assert 1.45 < lookahead_for(1092 * model.particle_volume * 1e6) < 1.55
+    assert lookahead_for(2 * SEND_RATE_ML_S) == pytest.approx(2.0)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="volume to send"):
+            lookahead_for(bad)
 
 
 def test_a_short_plate_run_sends_the_liquid_towards_its_bowl(plate):

@@ -26,7 +26,7 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 from ..control.catch import FALLING_MIN, MAX_SPEED, RANGE, CatchLoss, CatchMPC, CatchParts, extrapolate_pose, \
     slide_space
 from ..control.mpc import MPC
-from ..control.plate import LOOKAHEAD_S, MAX_RATE, MAX_TILT, UPRIGHT_WEIGHT, aim_point, send_loss, tilt2_of, \
+from ..control.plate import MAX_RATE, MAX_TILT, UPRIGHT_WEIGHT, aim_point, lookahead_for, send_loss, tilt2_of, \
     tilt2_space
 from ..scenes.liquid_level import held
 from ._task import task_to_str
@@ -207,6 +207,8 @@ class SendTask:
         self.rest, self.base_ml, self.ids, self.held0 = np.asarray(rest, float), float(base_ml), ids, int(held0)
         self.obj, self.dst = names.index(s.object), names.index(s.target)
         self.aim = aim_point(eng._frame_poses[self.dst], eng._scene.objects[self.dst])
+        # how fast the loss asks to send the liquid: by the amount on the object at the start
+        self.lookahead = lookahead_for(self.held0 * eng._model.particle_volume * 1e6)
         self.mpc = MPC(eng._model, self._space(eng), None, horizon=HORIZON, step_size=SEND_STEP)
         self.last_sim_t, self.control_frame = -1.0, -1
         self.command = (np.asarray(eng._frame_poses[self.obj], float).copy(), np.zeros(3), False)
@@ -256,7 +258,8 @@ class SendTask:
         q = torch.as_tensor(tilt2_of(eng._frame_poses[self.obj], self.rest), dtype=torch.float64)
         self.mpc.model, self.mpc.space = eng._model, space
         self.mpc.step_size = SEND_STEP * elapsed        # the rates change as fast per second as at one update a step
-        self.mpc.loss = send_loss(self.aim.to(eng._state.x.dtype), UPRIGHT_WEIGHT, LOOKAHEAD_S, ids=self._live(eng))
+        self.mpc.loss = send_loss(self.aim.to(eng._state.x.dtype), UPRIGHT_WEIGHT, self.lookahead,
+                                  ids=self._live(eng))
         with torch.enable_grad():
             u = self.mpc.update(eng._state, q)[0]
         self.last_sim_t = eng._sim_t
