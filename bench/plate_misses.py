@@ -2,12 +2,14 @@
 scene, and replay the executed tilts with shorter PBF steps.
 
     OMP_NUM_THREADS=1 python bench/plate_misses.py [--targets 0,1,…] [--substeps 1,2,4] [--jobs 2]
+        [--full] [--lookahead S]
 
-For each target bowl (quick ``plate_tilt`` scene, seed 0, the MPC of ``liquidtwin evaluate
-control --quick``): the particles the target bowl holds at the end, those it held at some step
-and lost ("splashed out": in the bowl's cavity, then over its rim), and those it never held
-("missed"); the horizontal speed of each particle at the first step the bowl holds it; and
-the first step at which a particle the bowl held leaves it.
+For each target bowl (quick ``plate_tilt`` scene, or the full one with ``--full``; seed 0, the
+MPC of ``liquidtwin evaluate control [--quick] [--lookahead S]``): the particles the target
+bowl holds at the end, those it held at some step and lost ("splashed out": in the bowl's
+cavity, then over its rim), and those it never held ("missed"); the horizontal speed of each
+particle at the first step the bowl holds it; and the first step at which a particle the bowl
+held leaves it.
 
 Then the tilt trajectory the MPC executed is replayed open loop by the same model with dt / n
 for each ``--substeps`` n (the tilt interpolated linearly between executed steps): the share
@@ -61,10 +63,10 @@ def replay(setup, model, state, target: int, tilts_deg: np.ndarray, substeps: in
 
 
 def run_target(work) -> dict:
-    target, substeps = work
+    target, substeps, quick, lookahead = work
     from liquidtwin.control.plate import plate_scene, run_plate
     torch.set_num_threads(1)
-    setup, model, state = plate_scene(0, True)
+    setup, model, state = plate_scene(0, quick)
     n = int(state.x.shape[0])
     held_by_step, speed_by_step = [], []
 
@@ -74,7 +76,7 @@ def run_target(work) -> dict:
         v[s.ids.numpy()] = s.v.detach().double().numpy()
         speed_by_step.append(np.hypot(v[:, 0], v[:, 2]))
 
-    r = run_plate(setup, model, state, target, on_step=follow)
+    r = run_plate(setup, model, state, target, on_step=follow, lookahead_s=lookahead)
     H = np.stack(held_by_step)                      # (steps, ids)
     ever, end = H.any(0), H[-1]
     first = np.argmax(H, 0)
@@ -97,7 +99,12 @@ def main() -> None:
     p.add_argument("--substeps", default="1,2,3,4,6,8",
                    help="replay the executed tilts with dt / n for each n, comma-separated (default: %(default)s)")
     p.add_argument("--jobs", type=int, default=2, help="targets run in parallel (default: %(default)s)")
-    p.add_argument("--out", type=Path, default=RESULTS, help="JSON results (default: bench/results/plate_misses_quick.json)")
+    p.add_argument("--full", action="store_true",
+                   help="the full scene (1,092 particles; ~1 min a target, and a replay costs as much per n)")
+    p.add_argument("--lookahead", type=float, default=None, metavar="S",
+                   help="the plate loss's lookahead, s (default: control.plate.lookahead_for the liquid)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="JSON results (default: bench/results/plate_misses_quick.json, _full.json with --full)")
     p.add_argument("--no-history", action="store_true", help="do not append to bench/history.jsonl")
     a = p.parse_args()
     try:
@@ -107,7 +114,10 @@ def main() -> None:
         raise SystemExit("--targets and --substeps take whole numbers separated by commas") from None
     if not all(0 <= t < 8 for t in targets) or not all(s >= 1 for s in substeps) or a.jobs < 1:
         raise SystemExit("targets are bowls 0-7, substeps and --jobs at least 1")
-    work = [(t, substeps) for t in targets]
+    if a.lookahead is not None and not (np.isfinite(a.lookahead) and a.lookahead >= 0):
+        raise SystemExit(f"--lookahead takes seconds >= 0, got {a.lookahead}")
+    out = a.out or (RESULTS.with_name("plate_misses_full.json") if a.full else RESULTS)
+    work = [(t, substeps, not a.full, a.lookahead) for t in targets]
     if a.jobs == 1:
         results = [run_target(w) for w in work]
     else:
@@ -120,10 +130,11 @@ def main() -> None:
         es = f"{e['p10']:.2f} / {e['median']:.2f} / {e['p90']:.2f}" if e else "—"
         rep = " ".join(f"{100 * r['replay_in_target'][str(m)]:5.1f}" for m in substeps)
         print(f"{r['target']:>4} {100 * r['caught']:6.1f}% {r['splashed_out']:>13} {r['missed']:>7} {es:>28}   {rep}")
-        emit({"what": "plate_misses", **r}, not a.no_history)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps({"scene": "plate_tilt", "quick": True, "seed": 0, "results": results}, indent=1))
-    print(f"wrote {a.out}")
+        emit({"what": "plate_misses", "quick": not a.full, "lookahead_s": a.lookahead, **r}, not a.no_history)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"scene": "plate_tilt", "quick": not a.full, "seed": 0, "lookahead_s": a.lookahead,
+                               "results": results}, indent=1))
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,9 @@
 
 ``--scene plate`` (default): tilt a plate about world x and z so the liquid resting on it
 lands in one of 8 bowls; one run per bowl. Target: ≥ 99 % of the liquid in the target bowl
-for 8/8 (thesis: 100 % for 7/8).
+for 8/8 (thesis: 100 % for 7/8). The loss's lookahead, which sets how fast the liquid is
+sent, follows the amount on the plate (``control.plate.lookahead_for``); ``--lookahead S``
+fixes it.
 
 ``--scene catching``: slide a cup to catch the stream of a source that pours while it
 moves (``control.catch``); one run per source motion (8). Target: ≥ 98 % caught in every
