@@ -9,7 +9,8 @@ with gradients through the session's model, from the tracked particles, one upda
   instead: one network evaluation per frame, no rollout.
 - ``send``: tilt an object the liquid rests on about world x and z through its origin so the
   liquid lands in the target (the plate MPC's loss, :func:`liquidtwin.control.plate.send_loss`,
-  over the particles the object held when the task was set).
+  over the particles the object held when the task was set; the lookahead follows their
+  amount, :func:`liquidtwin.control.plate.lookahead_for`).
 
 Each Control carries the commanded pose at the next frame and the twist that takes the object
 there (linear velocity of ``axis_point_m`` and angular velocity about it).
