@@ -102,7 +102,8 @@ def run_target(work) -> dict:
     r = run_plate(setup, model, state, target, seconds=seconds, horizon=horizon, step_size=step_size,
                   lookahead_s=lookahead)
     return {"target": target, "particles": int(state.x.shape[0]), "caught": r.caught, "in_bowls": r.in_bowls,
-            "spilled": r.spilled, "on_plate": r.on_plate, "max_tilt_deg": float(np.abs(r.tilts_deg).max()), "tilts_deg": r.tilts_deg.tolist(),
+            "spilled": r.spilled, "on_plate": r.on_plate, "max_tilt_deg": float(np.abs(r.tilts_deg).max()),
+            "tilts_deg": r.tilts_deg.tolist(),
             "losses": r.losses, "wall_s": r.wall_s, "update_s": r.update_s}
 
 
