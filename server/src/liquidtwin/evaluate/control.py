@@ -84,7 +84,9 @@ def configure(p) -> None:
                         "one Control per frame at FPS, a simulated robot moving the object to each Control's "
                         "pose (evaluate.served; the session's own horizon and steps: --horizon and --step-size do not "
                         "apply); default 0: the offline controller, one update per model step")
-    p.add_argument("--seed", type=int, default=0, help="scene draw (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="scene draw (default: %(default)s; the plate scene's plate, bowls and liquid do not "
+                        "depend on it, only its camera)")
     p.add_argument("--jobs", type=int, default=2, help="targets run in parallel (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
 
