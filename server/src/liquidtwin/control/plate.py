@@ -41,9 +41,10 @@ LOOKAHEAD_S = 0.25
 #: spread over the plate) entered the target bowl at ~0.8 m/s (all of it), and 30 % ran up
 #: its far wall and over the rim within 0.15 s: 70.3 % in the target over the 8 bowls. With
 #: a fixed lookahead of 0.55 / 1.0 / 1.5 / 2.0 s: 82.8 / 97.4 / 98.1 / 95.3 % (1.5 s was
-#: chosen on bowls 0 and 3; this rate makes it 1.51 s). The quick scene's 29 ml keep 0.25 s:
-#: a session serving it sent all of a test's liquid into bowl 3 at 0.25 s, 94 / 89 / 60 % at
-#: 0.55 / 1.0 / 1.5 s (docs/sysid_control.md, "How fast to send").
+#: first tried on bowls 0 and 3; 1.0 and 1.5 s are level on the other bowls; this rate makes
+#: it 1.51 s). The quick scene's 29 ml keep 0.25 s: a session serving it sent all of a test's
+#: liquid into bowl 3 at 0.25 s, 94 / 89 / 60 % at 0.55 / 1.0 / 1.5 s (docs/sysid_control.md,
+#: "How fast to send").
 SEND_RATE_ML_S = 120.0
 
 
