@@ -12,8 +12,8 @@ import pytest
 import torch
 
 from liquidtwin.control import MPC, ControlError
-from liquidtwin.control.plate import LOOKAHEAD_S, MAX_RATE, MAX_TILT, SEND_RATE_ML_S, lookahead_for, plate_scene, \
-    plate_space, run_plate, send_loss, target_point, tilt_quaternion
+from liquidtwin.control.plate import LOOKAHEAD_S, MAX_RATE, MAX_TILT, SEND_RATE_ML_S, STEP_SIZE, lookahead_for, \
+    plate_scene, plate_space, run_plate, send_loss, step_for, target_point, tilt_quaternion
 from liquidtwin.scenes.fill import fill_container
 from liquidtwin.sim import make_state, quat_to_matrix
 from liquidtwin.sim.sdf import quat_from_axis_angle
@@ -110,6 +110,9 @@ def test_more_liquid_is_sent_more_slowly(plate):
     assert lookahead_for(1092 * model.particle_volume * 1e6) == pytest.approx(1092 * model.particle_volume * 1e6 / 120.0)
     assert 1.45 < lookahead_for(1092 * model.particle_volume * 1e6) < 1.55
     assert lookahead_for(2 * SEND_RATE_ML_S) == pytest.approx(2.0)
+    # … and its MPC takes proportionally smaller steps: the same for the quick scene
+    assert step_for(LOOKAHEAD_S) == STEP_SIZE == 0.5
+    assert step_for(2.0) == pytest.approx(0.5 * 0.25 / 2.0) and step_for(2.0, 0.2) == pytest.approx(0.2 * 0.25 / 2.0)
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="volume to send"):
             lookahead_for(bad)

@@ -62,7 +62,8 @@ def configure(p) -> None:
     p.add_argument("--horizon", type=int, default=10, help="MPC horizon, steps (default: %(default)s)")
     p.add_argument("--step-size", type=float, default=None,
                    help="MPC step on each control, rad/s or m/s (default: 0.5; catching 0.1 — at 0.5 the "
-                        "catcher jerked between ±0.5 m/s and its catch sloshed out)")
+                        "catcher jerked between ±0.5 m/s and its catch sloshed out; plate: 0.5 × 0.25 s / the "
+                        "lookahead, control.plate.step_for)")
     p.add_argument("--lookahead", type=float, default=None, metavar="S",
                    help="plate: the loss scores where each particle will be S seconds later at its velocity, "
                         "which sets how fast the liquid is sent (default: control.plate.lookahead_for the liquid "
@@ -273,9 +274,9 @@ def run(args) -> int:
     from tqdm.auto import tqdm
 
     from ..procs import map_jobs
-    if args.step_size is None:
+    if args.step_size is None and args.scene != "plate":      # the plate's follows its lookahead
         args.step_size = 0.1 if args.scene == "catching" else 0.5
-    if not args.seconds > 0 or args.horizon < 1 or not args.step_size > 0:
+    if not args.seconds > 0 or args.horizon < 1 or not (args.step_size is None or args.step_size > 0):
         raise SystemExit("--seconds and --step-size must be > 0, --horizon >= 1")
     if args.served:
         if not (np.isfinite(args.served) and args.served > 0):

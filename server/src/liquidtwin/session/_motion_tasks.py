@@ -27,8 +27,8 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 from ..control.catch import FALLING_MIN, MAX_SPEED, RANGE, CatchLoss, CatchMPC, CatchParts, extrapolate_pose, \
     slide_space
 from ..control.mpc import MPC
-from ..control.plate import MAX_RATE, MAX_TILT, UPRIGHT_WEIGHT, aim_point, lookahead_for, send_loss, tilt2_of, \
-    tilt2_space
+from ..control.plate import MAX_RATE, MAX_TILT, STEP_SIZE, UPRIGHT_WEIGHT, aim_point, lookahead_for, send_loss, \
+    step_for, tilt2_of, tilt2_space
 from ..scenes.liquid_level import held
 from ._task import task_to_str
 from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
@@ -36,7 +36,7 @@ from .errors import BAD_REQUEST, INFEASIBLE, UNKNOWN_NAME, EngineError
 #: The MPCs' horizon (model steps) and normalised steps (control units per update): run_catch's
 #: and run_plate's (liquidtwin evaluate control's).
 HORIZON = 10
-CATCH_STEP, SEND_STEP = 0.1, 0.5
+CATCH_STEP, SEND_STEP = 0.1, STEP_SIZE
 
 
 def _check_common(task: pb.Task, names, roles: dict, containers: tuple, controllers=("mpc",)) -> None:
@@ -258,7 +258,8 @@ class SendTask:
         space = self._space(eng)
         q = torch.as_tensor(tilt2_of(eng._frame_poses[self.obj], self.rest), dtype=torch.float64)
         self.mpc.model, self.mpc.space = eng._model, space
-        self.mpc.step_size = SEND_STEP * elapsed        # the rates change as fast per second as at one update a step
+        # the rates change as fast per second as at one update a step (smaller steps for slower sends)
+        self.mpc.step_size = step_for(self.lookahead, SEND_STEP) * elapsed
         self.mpc.loss = send_loss(self.aim.to(eng._state.x.dtype), UPRIGHT_WEIGHT, self.lookahead,
                                   ids=self._live(eng))
         with torch.enable_grad():
