@@ -145,7 +145,8 @@ def test_the_full_plate_scene_sends_its_sheet_of_liquid_slowly_enough_to_stay_in
     over the 8 bowls, nothing left on the plate, by 0.6 s). With the lookahead stretched by
     the amount (1.51 s) 94–99.7 % stayed (README, "MPC on the full plate scene"). Bowl 1 under
     three float roundings (neighbour skins 0, 0.1 and 0.2 h; uncommitted runs): 71.2 / 69.6 /
-    67.3 % at 1 s with 0.25 s, 99.5 / 98.3 / 97.3 % with the rule."""
+    67.3 % at 1 s with 0.25 s, 99.5 / 98.3 / 97.3 % with the rule's lookahead and the old step
+    (0.5); 98.7 % with the step that now shrinks with the lookahead (skin 0)."""
     setup, model, state = plate_scene(0, False)
     assert state.x.shape[0] == 1092
     flick = run_plate(setup, model, state, 1, seconds=1.0, lookahead_s=LOOKAHEAD_S)

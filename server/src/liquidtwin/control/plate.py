@@ -51,7 +51,7 @@ SEND_RATE_ML_S = 120.0
 #: (:func:`step_for`). A session updates once a frame and multiplies the step by the model
 #: steps a frame takes; at 30 fps with the full scene's 1.51 s and this step unscaled, its
 #: tilts jumped by 5–15° from frame to frame and sent up to 14 % of the liquid to a neighbour
-#: (mean in the target 89.2 %; 97.5 % scaled, uncommitted runs; offline 97.8 → 98.2 %).
+#: (mean in the target 89.2 %; 97.2 % with the step scaled; offline 97.8 → 98.5 %: README).
 STEP_SIZE = 0.5
 
 
