@@ -57,7 +57,8 @@ STEP_SIZE = 0.5
 
 def step_for(lookahead_s: float, step_size: float = STEP_SIZE) -> float:
     """The normalised step for a send loss with ``lookahead_s``: ``step_size`` × LOOKAHEAD_S /
-    lookahead (the liquid is asked to move that much more slowly)."""
+    lookahead (the liquid is asked to move that much more slowly); ``step_size`` itself for a
+    lookahead at or below LOOKAHEAD_S."""
     return float(step_size) * LOOKAHEAD_S / max(float(lookahead_s), LOOKAHEAD_S)
 
 
