@@ -22,7 +22,7 @@ from _record import emit
 from liquidtwin.control.pour import run_pour
 from liquidtwin.evaluate.control import POUR_CUP_SCALE
 from liquidtwin.generate.catalog import build_setup
-from liquidtwin.generate.world import model_for
+from liquidtwin.generate.world import control_model
 from liquidtwin.scenes.fill import fill_container
 from liquidtwin.scenes.liquid_level import held
 
@@ -49,7 +49,7 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     setup = build_setup("pour_hold", np.random.default_rng(0), quick=True, source="cup", target="bowl", fraction=0.9,
                         source_scale=a.cup_scale)
-    model = model_for(setup)
+    model = control_model(setup)
     k = setup.index("source")
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                                 volume_ml=a.fill, settle_s=0.5)

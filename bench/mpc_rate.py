@@ -23,7 +23,7 @@ from _record import emit
 from liquidtwin.control.mpc import MPC
 from liquidtwin.control.pour import lip_space, predict_landed
 from liquidtwin.generate.catalog import build_setup
-from liquidtwin.generate.world import model_for
+from liquidtwin.generate.world import control_model
 from liquidtwin.scenes.fill import fill_container
 from liquidtwin.sim import step
 
@@ -38,7 +38,7 @@ def main() -> None:
     a = p.parse_args()
     torch.set_num_threads(a.threads)
     setup = build_setup("pour_hold", np.random.default_rng(0), quick=False, source="cup", target="bowl", fraction=0.9)
-    model = model_for(setup)
+    model = control_model(setup)
     src, dst = setup.index("source"), setup.index("target")
     space, lip = lip_space(setup)
     lip = lip.to(torch.float32)

@@ -105,7 +105,8 @@ def run_target(work) -> dict:
     setup, model, state = plate_scene(seed, quick)
     r = run_plate(setup, model, state, target, seconds=seconds, horizon=horizon, step_size=step_size,
                   lookahead_s=lookahead)
-    return {"target": target, "particles": int(state.x.shape[0]), "caught": r.caught, "in_bowls": r.in_bowls,
+    return {"target": target, "particles": int(state.x.shape[0]), "iterations": model.iterations,
+            "caught": r.caught, "in_bowls": r.in_bowls,
             "spilled": r.spilled, "on_plate": r.on_plate, "max_tilt_deg": float(np.abs(r.tilts_deg).max()),
             "tilts_deg": r.tilts_deg.tolist(),
             "losses": r.losses, "wall_s": r.wall_s, "update_s": r.update_s}
@@ -115,7 +116,7 @@ def run_motion(work) -> dict:
     import torch
 
     from ..control.catch import catching_setup, run_catch
-    from ..generate.world import model_for
+    from ..generate.world import control_model
     from ..scenes.fill import fill_container
     motion, seed, quick, horizon, step_size, policy_file, served = work
     torch.set_num_threads(1)
@@ -127,13 +128,14 @@ def run_motion(work) -> dict:
         from ..control.policy import load_policy
         policy, _ = load_policy(None if policy_file == "shipped" else policy_file)
     setup = catching_setup(motion, quick, seed)
-    model = model_for(setup)
+    model = control_model(setup)
     k = setup.index("source")
     state, _ = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                               volume_ml=dict(setup.fills)["source"], settle_s=0.5)
     r = run_catch(setup, model, state, horizon=horizon, step_size=step_size, policy=policy)
     return {"motion": motion, "direction": setup.notes["direction"], "drift_m_s": setup.notes["drift_m_s"],
-            "particles": int(state.x.shape[0]), "caught": r.caught, "left_source": r.left_source,
+            "particles": int(state.x.shape[0]), "iterations": model.iterations, "caught": r.caught,
+            "left_source": r.left_source,
             "spilled": r.spilled, "xs": r.xs.tolist(), "travel_m": float(r.xs.max() - r.xs.min()),
             "wall_s": r.wall_s, "update_s": r.update_s, "dt": float(setup.dt)}
 
@@ -149,19 +151,20 @@ def run_pour_target(work) -> dict:
 
     from ..control.pour import run_pour
     from ..generate.catalog import build_setup
-    from ..generate.world import model_for
+    from ..generate.world import control_model
     from ..scenes.fill import fill_container
     target, seed, horizon, step_size, approach_rate, cup_scale = work
     torch.set_num_threads(1)
     setup = build_setup("pour_hold", np.random.default_rng(seed), quick=True, source="cup", target="bowl",
                         fraction=0.9, source_scale=cup_scale)
-    model = model_for(setup)
+    model = control_model(setup)
     k = setup.index("source")
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                                 volume_ml=POUR_FILL_ML, settle_s=0.5)
     r = run_pour(setup, model, state, target, rep.settled_ml / state.x.shape[0], horizon=horizon,
                  step_size=step_size, approach_rate=approach_rate)
-    return {"target_ml": target, "particles": int(state.x.shape[0]), "cup_ml": rep.settled_ml,
+    return {"target_ml": target, "particles": int(state.x.shape[0]), "iterations": model.iterations,
+            "cup_ml": rep.settled_ml,
             "cup_capacity_ml": setup.objects[k].model.capacity_ml,
             "poured_ml": r.poured_ml, "error_ml": r.poured_ml - target, "spilled_ml": r.spilled_ml,
             "left_ml": r.left_ml, "switched_s": r.switched_s, "angles_deg": np.asarray(r.angles_deg).tolist(),

@@ -18,11 +18,15 @@ import numpy as np
 
 
 def _engine(setup):
+    """(spec, engine): a session of ``setup``'s spec, solved with the control tasks'
+    iterations (``generate.world.control_model``; the offline runs' model) for the same liquid."""
     from liquidtwin_proto import liquidtwin_pb2 as pb
 
     from ..generate.generator import scene_spec
+    from ..generate.world import impact_iterations
+    from ..scenes.spec import solve_with
     from ..session import SessionEngine
-    spec = scene_spec(setup)
+    spec = solve_with(scene_spec(setup), impact_iterations(setup))
     eng = SessionEngine.create(pb.SessionSpec(scene=spec, tracking=pb.OPEN_LOOP))
     eng.advance(0.0, {})
     return spec, eng
@@ -63,7 +67,8 @@ def serve_plate(target: int, seed: int, quick: bool, seconds: float, fps: float)
     vols = eng.volumes()
     in_bowls = [vols[f"bowl{b}"] / on_plate for b in range(8)]
     tilts = np.degrees(np.stack([tilt2_of(p, rest) for p in poses]))
-    return {"target": target, "particles": eng.n_particles, "caught": in_bowls[target], "in_bowls": in_bowls,
+    return {"target": target, "particles": eng.n_particles, "iterations": int(spec.simulation.iterations),
+            "caught": in_bowls[target], "in_bowls": in_bowls,
             "spilled": 1.0 - sum(in_bowls), "on_plate": vols["plate"] / on_plate,
             "max_tilt_deg": float(np.abs(tilts).max()), "tilts_deg": tilts.tolist(), "wall_s": wall,
             "update_s": float(np.median(update_s)), "update_s_max": float(np.max(update_s)), "fps": fps}
@@ -76,7 +81,7 @@ def serve_catch(motion: int, seed: int, quick: bool, fps: float, controller: str
 
     from ..control.catch import catching_setup
     setup = catching_setup(motion, quick, seed)
-    _, eng = _engine(setup)
+    spec, eng = _engine(setup)
     held = eng.volumes()["source"]
     t0 = time.perf_counter()
     poses, update_s = _drive(eng, setup, "catcher", pb.Task(catch_stream=pb.Task.CatchStream(
@@ -85,7 +90,7 @@ def serve_catch(motion: int, seed: int, quick: bool, fps: float, controller: str
     vols = eng.volumes()
     xs = poses[:, 0]
     return {"motion": motion, "direction": setup.notes["direction"], "drift_m_s": setup.notes["drift_m_s"],
-            "particles": eng.n_particles, "caught": vols["catcher"] / held,
+            "particles": eng.n_particles, "iterations": int(spec.simulation.iterations), "caught": vols["catcher"] / held,
             "left_source": 1.0 - vols["source"] / held, "spilled": 1.0 - (vols["catcher"] + vols["source"]) / held,
             "xs": xs.tolist(), "travel_m": float(xs.max() - xs.min()), "wall_s": wall,
             "update_s": float(np.median(update_s)), "update_s_max": float(np.max(update_s)), "dt": 1.0 / fps,
