@@ -119,3 +119,26 @@ def test_the_first_landing_prediction_matches_where_the_stream_crosses_the_rim()
           f"(catcher at {100 * x_catcher:.1f} cm, stream after {i} steps)")
     assert not math.isnan(predicted) and abs(predicted - actual) < 0.015
     assert actual < x_catcher - 0.08                 # far enough that waiting for the stream loses liquid
+
+
+def test_the_control_tasks_solve_their_falls_with_more_iterations_of_the_same_liquid():
+    """control_model: the scene model's liquid (same cohesion, h, dt, objects) solved with the
+    iterations a free fall from the highest rim needs (sim.iterations_for_impact)."""
+    from liquidtwin.control.plate import plate_scene
+    from liquidtwin.evaluate.served import _engine
+    from liquidtwin.generate.world import control_model, fall_height, impact_iterations, model_iterations
+    from liquidtwin.sim import iterations_for_impact
+    setup = catching_setup(7)
+    src, dst = setup.index("source"), setup.index("catcher")
+    p0 = setup.poses_at(0.0)
+    assert fall_height(setup) == pytest.approx(p0[src][1] + setup.objects[src].model.rim_height - p0[dst][1])
+    speed = math.sqrt(2 * 9.81 * fall_height(setup))               # 2.5 m/s onto the catcher's floor
+    assert impact_iterations(setup) == iterations_for_impact(speed, setup.dt, 0.55 * setup.h) == 11
+    base, ctrl = model_for(setup), control_model(setup)
+    assert (ctrl.iterations, ctrl.reference_iterations) == (11, model_iterations(setup)) == (11, base.iterations)
+    assert (ctrl.h, ctrl.dt, ctrl.kappa, ctrl.relaxation) == (base.h, base.dt, base.kappa, base.relaxation)
+    assert ctrl.params.as_dict() == base.params.as_dict()
+    plate_setup, plate_model, _ = plate_scene(0, True)
+    assert plate_model.iterations == impact_iterations(plate_setup) == 8   # a 16.7 cm fall
+    spec, _ = _engine(setup)                                        # a served task's session
+    assert (spec.simulation.iterations, spec.simulation.reference_iterations) == (11, model_iterations(setup))
