@@ -5,7 +5,8 @@ rollout of a max-rate return from 60° plus 1 s of landing) per cup fill.
     python bench/mpc_rate.py --fills 30,60,120,240,345
 
 Scene: pour_hold with a cup over a bowl (seed 0, full size: h = 1.1 cm, capacity 384 ml),
-filled with each volume, settled and tilted to 60° at 1 rad/s (pouring) for the timing. The controller
+in the control tasks' model (``generate.world.control_model``: 8 solver iterations since stop
+53, 5 before), filled with each volume, settled and tilted to 60° at 1 rad/s (pouring) for the timing. The controller
 runs at ≥ 10 Hz while one update (plus its predictions, when due) takes ≤ 0.1 s. Appends
 one JSON record per fill to bench/history.jsonl (``--no-history`` to skip).
 """
