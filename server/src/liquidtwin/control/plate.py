@@ -43,9 +43,9 @@ LOOKAHEAD_S = 0.25
 #: a fixed lookahead of 0.55 / 1.0 / 1.5 / 2.0 s: 82.8 / 97.4 / 98.1 / 95.3 % (1.5 s was
 #: first tried on bowls 0 and 3; 1.0 and 1.5 s are level on the other bowls; this rate makes
 #: it 1.51 s). All measured at the scene model's 4 iterations; the control tasks' 8 pack the
-#: same ml into 1,027 particles, which the rate gives 1.42 s. The quick scene's 29 ml keep 0.25 s: a session serving it sent all of a test's
-#: liquid into bowl 3 at 0.25 s, 94 / 89 / 60 % at 0.55 / 1.0 / 1.5 s (docs/sysid_control.md,
-#: "How fast to send").
+#: same ml into 1,027 particles, which the rate gives 1.42 s. The quick scene's 29 ml keep
+#: 0.25 s: a session serving it sent all of a test's liquid into bowl 3 at 0.25 s,
+#: 94 / 89 / 60 % at 0.55 / 1.0 / 1.5 s (docs/sysid_control.md, "How fast to send").
 SEND_RATE_ML_S = 120.0
 #: The MPC's normalised step on the tilt rates (rad/s per update, one update a model step) at
 #: the shortest lookahead; a longer lookahead takes a proportionally smaller step
