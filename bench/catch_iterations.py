@@ -65,8 +65,8 @@ def main() -> None:
         skins = [float(v) for v in a.skins.split(",")]
     except ValueError:
         raise SystemExit("--iterations takes whole numbers, --skins numbers, comma-separated") from None
-    if not counts or not skins or min(counts) < 1 or min(skins) < 0 or (a.fill_iterations or 1) < 1:
-        raise SystemExit("--iterations and --fill-iterations must be >= 1 and --skins >= 0")
+    if not counts or not skins or min(counts) < 1 or min(skins) < 0 or (a.fill_iterations or 1) < 1 or a.jobs < 1:
+        raise SystemExit("--iterations, --fill-iterations and --jobs must be >= 1 and --skins >= 0")
     from tqdm.auto import tqdm
 
     from liquidtwin.procs import map_jobs

@@ -264,7 +264,7 @@ class CatchRun:
     spilled: float         # neither in the source nor in the catcher
     xs: np.ndarray         # (steps,) catcher x after each step, m
     wall_s: float
-    update_s: float        # s per control (an MPC update or a policy evaluation)
+    update_s: float        # s per control step: an MPC update or a policy evaluation, plus the model step
     states: list = dataclasses.field(default_factory=list)   # keep_states: the state before each step
     aims: np.ndarray = None   # keep_states: the predicted first landing before each step (NaN: none)
 
