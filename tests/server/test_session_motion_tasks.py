@@ -175,3 +175,24 @@ def test_impossible_catch_and_send_tasks_are_refused(catch_scene, task, code, wo
         eng.set_task(task)
     assert pb.Error.Code.Name(err.value.code) == code and words in str(err.value), str(err.value)
     assert eng.control() is None                                  # nothing was set
+
+
+def test_a_control_task_on_a_session_that_cannot_hold_its_falls_warns():
+    """A catch task set on the catching scene's session at its stated 4 iterations warns that
+    liquid falling 32 cm needs 11 (sim.iterations_for_impact); the same spec solved with 11
+    (scenes.spec.solve_with: the same liquid) does not."""
+    import warnings
+
+    from liquidtwin.scenes.spec import solve_with
+    task = pb.Task(catch_stream=pb.Task.CatchStream(source="source", catcher="catcher"))
+    setup, spec, eng = _catch_engine(3, 0.2)
+    assert spec.simulation.iterations == 4
+    with pytest.warns(RuntimeWarning, match=r"fall 32 cm .*simulation.iterations >= 11 \(reference_iterations 4"):
+        eng.set_task(task)
+    spec11 = solve_with(scene_spec(setup), 11)
+    spec11.fills[0].volume_ml = spec.fills[0].volume_ml
+    eng11 = SessionEngine.create(pb.SessionSpec(scene=spec11, tracking=pb.OPEN_LOOP))
+    eng11.advance(0.0, {})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        eng11.set_task(task)

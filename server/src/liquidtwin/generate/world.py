@@ -17,6 +17,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ..scenes.fill import fill_container
+from ..scenes.liquid_level import fall_height as level_fall_height
 from ..sim import (FluidModel, FluidState, QuadraticDrag, SDFGrid, UniformAcceleration, WallAdhesion, carve,
                    iterations_for_depth, iterations_for_impact, make_state, solidify, step)
 
@@ -67,12 +68,8 @@ def fall_height(setup) -> float:
     """The longest free fall (m) liquid can take in ``setup``: from the highest container rim
     down to the lowest container floor, the objects as they stand at the start (a cup that
     pours pivots about its lip, which stays about as high as the upright rim)."""
-    p0 = setup.poses_at(0.0)
-    containers = [k for k, o in enumerate(setup.objects) if o.container]
-    if not containers:
-        return 0.0
-    top = max(float(p0[k, 1]) + float(setup.objects[k].model.rim_height) for k in containers)
-    return max(top - min(float(p0[k, 1]) for k in containers), 0.0)
+    return level_fall_height(setup.poses_at(0.0), [o.model for o in setup.objects],
+                             [k for k, o in enumerate(setup.objects) if o.container])
 
 
 def impact_iterations(setup) -> int:

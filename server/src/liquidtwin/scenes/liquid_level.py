@@ -31,6 +31,19 @@ TOP_REACH = 1.0      # spacings: top particles averaged for a column's surface
 _SQUASH = torch.tensor([1.0, 1e-4, 1.0], dtype=torch.float64)   # heights squashed: columns
 
 
+def fall_height(poses, objects, containers) -> float:
+    """The longest free fall (m) liquid can take between containers: from the highest rim
+    (pose height + rim height, upright) down to the lowest floor (pose height). ``poses``
+    (M, 7); ``objects``: the M :class:`ObjectModel` s; ``containers``: indices of the
+    containers among them. 0 with none."""
+    poses = np.asarray(poses, float)
+    ks = list(containers)
+    if not ks:
+        return 0.0
+    top = max(float(poses[k, 1]) + float(objects[k].rim_height) for k in ks)
+    return max(top - min(float(poses[k, 1]) for k in ks), 0.0)
+
+
 def rotation(pose: torch.Tensor) -> np.ndarray:
     """(3, 3) float64 rotation of a (7,) pose (object → world)."""
     return quat_to_matrix(pose[3:].detach().to(torch.float64)).numpy()
