@@ -31,7 +31,7 @@ def _run(work) -> dict:
     from liquidtwin.generate.world import MODEL_RELAXATION, model_iterations
     from liquidtwin.scenes.fill import fill_container
     from liquidtwin.sim import FluidModel
-    motion, iterations, skin, *fill = work
+    motion, iterations, skin, fill_iterations = work
     torch.set_num_threads(1)
     setup = catching_setup(motion, True, 0)
 
@@ -42,7 +42,7 @@ def _run(work) -> dict:
 
     model = model_at(iterations)
     k = setup.index("source")
-    state, _ = fill_container(model_at(fill[0] if fill and fill[0] else iterations), torch.as_tensor(setup.poses_at(0.0)),
+    state, _ = fill_container(model_at(fill_iterations or iterations), torch.as_tensor(setup.poses_at(0.0)),
                               k, setup.objects[k].model, volume_ml=dict(setup.fills)["source"], settle_s=0.5)
     r = run_catch(setup, model, state)
     return {"motion": motion, "particles": int(state.x.shape[0]), "caught": r.caught, "spilled": r.spilled,

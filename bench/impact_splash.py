@@ -11,7 +11,7 @@ sideways by up to 0.3 spacing. K solver iterations solve the *same* liquid
 (``reference_iterations`` = 4, the quick scenes' count): only how well the density
 constraint is solved changes, so what falls with K is a solver error, not the liquid.
 
-Why: a particle arriving at v moves v·dt into the liquid below in one step (2.8 rest
+Why: a particle arriving at v moves v·dt into the liquid below in one step (2.75 rest
 spacings at 2 m/s and 120 Hz). Too few iterations leave that overlap half solved and the
 next step turns it into velocity: splashes leave faster than they came in (catching motion
 7 at 4 iterations: in at 1.8-2.3 m/s, out at up to 4.1 m/s). Writes the table as JSON and

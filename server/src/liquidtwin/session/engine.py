@@ -385,8 +385,8 @@ class SessionEngine:
         """RuntimeWarning when the session's model solves fewer iterations than liquid falling
         between its containers needs (``sim.iterations_for_impact``): a control task scored
         on where liquid lands then loses some of it to the solver's splash (the catching
-        MPC at 4 iterations lost 0.7-4.2 %, at 11 at most 1.0 %: README, "Solver iterations
-        and impacts")."""
+        MPC lost 0-4.6 % a motion at 4 iterations, at most 1.5 % at 11, over three roundings:
+        README, "Solver iterations and impacts")."""
         sc, model = self._scene, self._model
         fall = fall_height(self._frame_poses, sc.objects, [sc.names.index(n) for n in sc.containers])
         speed = math.sqrt(2.0 * 9.81 * fall)
