@@ -2,6 +2,7 @@
 JSON, PNGs, n/a for a tracker that cannot run), the ceiling above every tracker, and the
 table's pooling on a hand-made result list."""
 
+import argparse
 import json
 
 import numpy as np
@@ -158,6 +159,35 @@ def test_iterations_option_sets_the_analysing_models_solver(evaluated):
     for bad in (0, -2, 2.5, True):
         with pytest.raises(SystemExit, match="--iterations"):
             with_model_options(rec, bad)
+
+
+def test_impact_iterations_option_solves_each_recordings_own_fall(evaluated, capsys):
+    """``--iterations impact`` gives each recording the count its own scene's longest fall
+    needs, read from its spec alone: the generator's rule for the same setup (8 for this cup
+    over its bowl), the same liquid (reference_iterations 4), recorded per case."""
+    from liquidtwin.evaluate.cli import iterations_arg, with_model_options
+    from liquidtwin.generate.catalog import build_setup
+    from liquidtwin.generate.world import impact_iterations
+    from liquidtwin.recordings import read_recording
+    out, data, doc = evaluated
+    case = cases(quick=True, trials=1)[0]
+    setup = build_setup(case.scene, np.random.default_rng(case.seed), quick=True, source=case.source,
+                        fraction=case.fraction)
+    rec = with_model_options(read_recording(doc["cases"][0]["recording"], images=False), "impact")
+    assert (rec.spec.simulation.iterations, rec.spec.simulation.reference_iterations) == (impact_iterations(setup), 4)
+    assert rec.spec.simulation.iterations == 8
+    assert doc["cases"][0]["iterations"] == 4                   # the run above: the recording's own count
+    for bad in ("0", "many", "2.5"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            iterations_arg(bad)
+    assert iterations_arg("impact") == "impact" and iterations_arg("6") == 6
+    rc = cli_main(["evaluate", "tracking", "--quick", "--trials", "1", "--cases", "1", "--frames", "20",
+                   "--trackers", "open_loop", "--iterations", "impact", "--data", str(data),
+                   "--out", str(out / "impact"), "--no-progress"])
+    assert rc in (0, None)
+    run = json.loads((out / "impact" / "results.json").read_text())
+    assert run["iterations"] == "impact" and run["cases"][0]["iterations"] == 8
+    assert "model solver iterations impact (8 a recording)" in capsys.readouterr().out
 
 
 def test_cases_option_picks_a_range_that_keeps_each_case_and_its_seed():

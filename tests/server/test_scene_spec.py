@@ -7,7 +7,8 @@ import pytest
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from liquidtwin.geometry import build
-from liquidtwin.scenes.spec import SpecError, load_spec, save_spec, scene_objects, simulation_settings, solve_with
+from liquidtwin.scenes.spec import (SpecError, impact_iterations, load_spec, save_spec, scene_objects, simulation_settings,
+                                    solve_with)
 
 
 def _spec(**fill) -> pb.SceneSpec:
@@ -45,6 +46,28 @@ def test_solving_with_more_iterations_keeps_the_liquid(tmp_path):
         with pytest.raises(ValueError, match="whole number"):
             solve_with(spec, bad)
     assert (spec.simulation.iterations, spec.simulation.reference_iterations) == (2, 4)     # unchanged
+
+
+def test_impact_iterations_solve_the_longest_fall_between_the_containers():
+    """A cup whose rim stands 0.35 m above a bowl's floor: liquid lands at sqrt(2 g 0.35)
+    = 2.62 m/s, 3.61 rest spacings a 120 Hz step, so 11 iterations (3 per spacing); a
+    non-container above them does not count, and the count never drops below the stated one."""
+    import math
+    spec = _spec()
+    spec.objects.add(name="bowl", model="bowl", container=True, initial_pose=[0.1, 0.0, 0, 0, 0, 0, 1])
+    objects = {n: m for n, m, _ in scene_objects(spec)}
+    spec.objects[0].initial_pose[1] = 0.35 - objects["source"].rim_height
+    speed = math.sqrt(2 * 9.81 * 0.35)
+    expected = math.ceil(3 * speed / 120 / (0.55 * 0.011))
+    assert expected == 11 and impact_iterations(spec) == expected
+    spec.objects.add(name="shelf", model="bowl", container=False, initial_pose=[0.5, 0.9, 0, 0, 0, 0, 1])
+    assert impact_iterations(spec) == expected
+    spec.simulation.iterations = 14
+    assert impact_iterations(spec) == 14
+    spec.objects[0].initial_pose[1] = 0.0                       # side by side: a rim's fall, the stated count
+    spec.simulation.iterations = 0
+    assert impact_iterations(spec) == max(4, math.ceil(3 * math.sqrt(2 * 9.81 * objects["source"].rim_height)
+                                                         / 120 / (0.55 * 0.011)))
 
 
 def test_catalogue_and_user_mesh_objects(tmp_path):

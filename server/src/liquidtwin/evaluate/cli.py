@@ -55,10 +55,28 @@ def add_common(p: argparse.ArgumentParser, *, out: str) -> None:
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
     """Options of the model that analyses each recording (kinds that replay recordings)."""
-    p.add_argument("--iterations", type=int, default=None, metavar="N",
-                   help="PBF solver iterations of the analysing model (default: the recording's scene spec; "
-                        "generated recordings: 4 in quick scenes, enough to hold their deepest container "
-                        "90 %% full in full ones). A model setting, not the world's truth")
+    p.add_argument("--iterations", type=iterations_arg, default=None, metavar="N|impact",
+                   help="PBF solver iterations of the analysing model, for the same liquid (default: the "
+                        "recording's scene spec; generated recordings: 4 in quick scenes, enough to hold their "
+                        "deepest container 90 %% full in full ones). 'impact': per recording, enough to solve "
+                        "liquid falling from its highest container rim to its lowest floor (at least the "
+                        "stated count; scenes.spec.impact_iterations). A model setting, not the world's truth")
+
+
+IMPACT = "impact"
+
+
+def iterations_arg(text: str):
+    """argparse type of ``--iterations``: a whole number >= 1, or ``impact``."""
+    if text == IMPACT:
+        return IMPACT
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"takes a whole number >= 1 or '{IMPACT}', got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"takes a whole number >= 1 or '{IMPACT}', got {text!r}")
+    return n
 
 
 def add_likelihood_options(p: argparse.ArgumentParser, *, batched: str = "yes", slack: float = 16.0,
@@ -98,15 +116,26 @@ def likelihood_options(args) -> tuple[float, float, float]:
     return delta, slack, blur
 
 
-def with_model_options(rec, iterations: int | None):
+def solver_iterations(rec) -> int | None:
+    """The solver iterations ``rec``'s model runs (after :func:`with_model_options`); None
+    without a scene spec."""
+    if rec.spec is None:
+        return None
+    from ..scenes.spec import simulation_settings
+    return int(simulation_settings(rec.spec)["iterations"])
+
+
+def with_model_options(rec, iterations: int | str | None):
     """``rec`` with its scene spec solving ``iterations`` solver iterations of the same liquid
-    (``scenes.spec.solve_with``; None: unchanged)."""
+    (``scenes.spec.solve_with``; None: unchanged; ``"impact"``: ``scenes.spec.impact_iterations``
+    of its own scene)."""
     if iterations is not None:
-        if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
-            raise SystemExit(f"--iterations must be a whole number >= 1, got {iterations!r}")
+        if iterations != IMPACT and (isinstance(iterations, (bool, str)) or int(iterations) != iterations
+                                     or iterations < 1):
+            raise SystemExit(f"--iterations must be a whole number >= 1 or '{IMPACT}', got {iterations!r}")
         if rec.spec is not None:
-            from ..scenes.spec import solve_with
-            solve_with(rec.spec, int(iterations))
+            from ..scenes.spec import impact_iterations, solve_with
+            solve_with(rec.spec, impact_iterations(rec.spec) if iterations == IMPACT else int(iterations))
     return rec
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from ..inference.likelihood import FILL_BLUR_PX, FILL_RADIUS_SCALE
 from .benchmark import ensure
 from .cli import (CASES_HELP, add_common, add_likelihood_options, add_model_options, case_range,
-                  likelihood_options, save_results, selected_cases, with_model_options)
+                  likelihood_options, save_results, selected_cases, solver_iterations, with_model_options)
 
 HELP = "initial-fill inference (empty/30/60/90 %) on the pouring benchmark (thesis Fig. 7.6)"
 FILLS = (0.0, 0.3, 0.6, 0.9)
@@ -68,7 +68,8 @@ def run(args) -> int:
     for case, path in tqdm(list(zip(case_list, paths)), desc="infer", unit="rec", disable=args.no_progress):
         rec = with_model_options(read_recording(path, images=False), args.iterations)
         truth = fill_name(case.fraction)                          # scoring only
-        row = {"case": case.as_dict(), "recording": str(path), "truth": truth, "modes": {}}
+        row = {"case": case.as_dict(), "recording": str(path), "truth": truth, "modes": {},
+               "iterations": solver_iterations(rec)}
         for mode in args.trackers:
             post = infer_fill(rec, fractions=FILLS, tracking=mode, scale=scale, frames=args.frames, delta=delta,
                               slack_px=slack, blur_px=blur, batched=args.batched == "yes",

@@ -34,7 +34,8 @@ import numpy as np
 
 from ..procs import map_jobs
 from .benchmark import ensure
-from .cli import CASES_HELP, add_common, add_model_options, case_range, save_results, selected_cases, with_model_options
+from .cli import (CASES_HELP, IMPACT, add_common, add_model_options, case_range, save_results, selected_cases,
+                  solver_iterations, with_model_options)
 from .replay import MODES, engine_for, replay
 
 HELP = "closed-loop tracking IOU per tracker on the pouring benchmark (thesis Fig. 7.5)"
@@ -234,7 +235,7 @@ def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: b
     if ceiling:
         engine = engine if engine is not None else engine_for(rec, "open_loop")
         series["ceiling"] = ceiling_series(rec, path, engine, camera, frames)
-    return {"series": series, "unavailable": notes, **extra}
+    return {"series": series, "unavailable": notes, "iterations": solver_iterations(rec), **extra}
 
 
 def _last_stamp(rec, frames: int | None) -> int | None:
@@ -285,6 +286,7 @@ def run(args) -> int:
     note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
             f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else "")
             + (f", model solver iterations {args.iterations}" if args.iterations else "")
+            + (f" ({_span([r['iterations'] for r in results])} a recording)" if args.iterations == IMPACT else "")
             + (f", pose filter {args.pose_filter}" if args.pose_filter else "")
             + "; ceiling = the true particles drawn as the model (scoring only)"
             + ("; TRACKER det = corrected with the RGB detector's masks, scored against the recorded masks"
@@ -310,6 +312,14 @@ def run(args) -> int:
     save_results(out, doc)
     _plots(out, tab, columns, results, args.min_px)
     return 0
+
+
+def _span(counts) -> str:
+    """"8-11" (or "8") of the solver iterations the recordings ran."""
+    got = [c for c in counts if c is not None]
+    if not got:
+        return "n/a"
+    return str(min(got)) if min(got) == max(got) else f"{min(got)}-{max(got)}"
 
 
 def _evaluate_one(job) -> dict:

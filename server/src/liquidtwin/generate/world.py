@@ -17,9 +17,9 @@ import torch
 from tqdm.auto import tqdm
 
 from ..scenes.fill import fill_container
-from ..scenes.liquid_level import fall_height as level_fall_height
+from ..scenes.liquid_level import fall_height as level_fall_height, impact_iterations as level_impact_iterations
 from ..sim import (FluidModel, FluidState, QuadraticDrag, SDFGrid, UniformAcceleration, WallAdhesion, carve,
-                   iterations_for_depth, iterations_for_impact, make_state, solidify, step)
+                   iterations_for_depth, make_state, solidify, step)
 
 #: liquidtwin's model settings for generated scenes (what a server would use): at least this
 #: many solver iterations, more for deep liquid (:func:`model_iterations`).
@@ -77,8 +77,9 @@ def impact_iterations(setup) -> int:
     :func:`fall_height`, ``sim.iterations_for_impact``) without throwing liquid back out,
     and at least :func:`model_iterations`: the quick catching scene 11 (a 32 cm fall), the
     plate 8, the pouring benchmark's cup 7."""
-    speed = math.sqrt(2.0 * 9.81 * fall_height(setup))
-    return iterations_for_impact(speed, setup.dt, 0.55 * setup.h, least=model_iterations(setup))
+    return level_impact_iterations(setup.poses_at(0.0), [o.model for o in setup.objects],
+                                   [k for k, o in enumerate(setup.objects) if o.container], setup.dt,
+                                   0.55 * setup.h, least=model_iterations(setup))
 
 
 def control_model(setup) -> FluidModel:

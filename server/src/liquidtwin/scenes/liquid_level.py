@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from ..geometry import ObjectModel, _rays
-from ..sim import FluidModel, FluidState, find_neighbors, quat_to_matrix
+from ..sim import FluidModel, FluidState, find_neighbors, iterations_for_impact, quat_to_matrix
 
 WET_REACH = 0.65     # spacings: how far from a particle a column still holds liquid
 TOP_REACH = 1.0      # spacings: top particles averaged for a column's surface
@@ -42,6 +42,14 @@ def fall_height(poses, objects, containers) -> float:
         return 0.0
     top = max(float(poses[k, 1]) + float(objects[k].rim_height) for k in ks)
     return max(top - min(float(poses[k, 1]) for k in ks), 0.0)
+
+
+def impact_iterations(poses, objects, containers, dt: float, spacing: float, least: int = 1) -> int:
+    """Solver iterations that take the fastest impact between ``containers`` (a free fall over
+    :func:`fall_height`, landing at sqrt(2 g fall)) without throwing liquid back out
+    (``sim.iterations_for_impact``), and at least ``least``."""
+    speed = math.sqrt(2.0 * 9.81 * fall_height(poses, objects, containers))
+    return iterations_for_impact(speed, dt, spacing, least=least)
 
 
 def rotation(pose: torch.Tensor) -> np.ndarray:

@@ -141,6 +141,19 @@ def _mesh_object(o: pb.SceneObject, base: Path) -> ObjectModel:
     return ObjectModel(o.name, mesh, wall)
 
 
+def impact_iterations(spec: pb.SceneSpec, base_dir=".") -> int:
+    """Solver iterations that solve the impacts of ``spec``'s scene: enough for liquid falling
+    from its highest container rim to its lowest container floor, the objects at their initial
+    poses (``liquid_level.impact_iterations``), and at least the count it states. Give it to
+    :func:`solve_with` to keep the same liquid."""
+    from .liquid_level import impact_iterations as need
+    objects = scene_objects(spec, base_dir)
+    sim = simulation_settings(spec)
+    return need(np.stack([pose for _, _, pose in objects]), [m for _, m, _ in objects],
+                [k for k, o in enumerate(spec.objects) if o.container], sim["dt"], sim["spacing"],
+                least=sim["iterations"])
+
+
 def scene_objects(spec: pb.SceneSpec, base_dir=".") -> list[tuple[str, ObjectModel, np.ndarray]]:
     """(name, ObjectModel, initial pose (7,)) per object; ``base_dir`` resolves relative
     mesh paths. Raises :class:`SpecError` (or the geometry's ``MeshError``) clearly."""

@@ -22,8 +22,8 @@ from liquidtwin_proto import liquidtwin_pb2 as pb
 
 from ..camera import sphere_coverage, sphere_radius_px, visible
 from ..recordings._interp import interpolate_poses
-from ..scenes.liquid_level import fall_height, held
-from ..sim import FluidState, collide_move, iterations_for_impact, particle_radius, step
+from ..scenes.liquid_level import fall_height, held, impact_iterations
+from ..sim import FluidState, collide_move, particle_radius, step
 from ..tracking import MapFilter, Observation, OpenLoop, WarpField
 from ._build import build_scene
 from ._checkpoint import engine_state, load_engine_state
@@ -383,14 +383,15 @@ class SessionEngine:
 
     def _warn_unsolved_impacts(self) -> None:
         """RuntimeWarning when the session's model solves fewer iterations than liquid falling
-        between its containers needs (``sim.iterations_for_impact``): a control task scored
+        between its containers needs (``scenes.liquid_level.impact_iterations``): a control task scored
         on where liquid lands then loses some of it to the solver's splash (the catching
         MPC lost 0-4.6 % a motion at 4 iterations, at most 1.5 % at 11, over three roundings:
         README, "Solver iterations and impacts")."""
         sc, model = self._scene, self._model
-        fall = fall_height(self._frame_poses, sc.objects, [sc.names.index(n) for n in sc.containers])
+        containers = [sc.names.index(n) for n in sc.containers]
+        need = impact_iterations(self._frame_poses, sc.objects, containers, model.dt, model.spacing)
+        fall = fall_height(self._frame_poses, sc.objects, containers)
         speed = math.sqrt(2.0 * 9.81 * fall)
-        need = iterations_for_impact(speed, model.dt, model.spacing)
         if model.iterations < need:
             warnings.warn(f"liquid can fall {100 * fall:.0f} cm here and land at {speed:.1f} m/s; {model.iterations} "
                           f"solver iterations leave such impacts half solved and throw part of it back out; "
