@@ -67,7 +67,7 @@ def configure(p) -> None:
     p.add_argument("--lookahead", type=float, default=None, metavar="S",
                    help="plate: the loss scores where each particle will be S seconds later at its velocity, "
                         "which sets how fast the liquid is sent (default: control.plate.lookahead_for the liquid "
-                        "on the plate: 0.25 s, or its volume / 120 ml/s when longer — quick 0.25 s, full 1.51 s; "
+                        "on the plate: 0.25 s, or its volume / 120 ml/s when longer — quick 0.25 s, full 1.42 s; "
                         "0.25 s for both before stop 52; the step follows it unless --step-size is given); "
                         "offline runs only")
     p.add_argument("--controller", choices=("mpc", "policy"), default="mpc",
