@@ -39,6 +39,11 @@ def add_serve_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=1, metavar="T", help="torch CPU threads (default: %(default)s)")
     p.add_argument("--detector", type=Path, default=None, metavar="MODEL.pt",
                    help="liquid detector for sessions with mask_source 'rgb' (default: the shipped model)")
+    p.add_argument("--solve-impacts", action="store_true",
+                   help="give each session the solver iterations that liquid falling between its containers "
+                        "needs, when its SceneSpec states fewer (the same liquid: reference_iterations at the "
+                        "stated count). Solver splash throws liquid back out of where it lands; on the quick "
+                        "pouring benchmark this raised tracking IOU by 1.5-2.6 points a pour (README)")
     p.add_argument("--server-id", default="", metavar="ID", help="liveliness id (default: server-<pid>-<random>)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"),
                    help="server log level on stderr (default: %(default)s)")
@@ -50,7 +55,8 @@ def config_from_args(args: argparse.Namespace) -> ServeConfig:
                        device=args.device, state_dir=args.state_dir, checkpoint_s=args.checkpoint_s,
                        max_payload_bytes=int(args.max_payload_mb * 1024 * 1024), max_sessions=args.max_sessions,
                        orphan_grace_s=args.orphan_grace_s, max_steps_per_frame=args.max_steps_per_frame,
-                       threads=args.threads, server_id=args.server_id, detector=args.detector)
+                       threads=args.threads, server_id=args.server_id, detector=args.detector,
+                       solve_impacts=args.solve_impacts)
 
 
 def run_serve(args: argparse.Namespace, engine_factory=None) -> int:

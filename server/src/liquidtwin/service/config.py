@@ -48,6 +48,9 @@ class ServeConfig:
       server_id: liveliness id of this server (a key chunk).
       detector: liquid detector model file for sessions whose masks come from RGB
         (``SessionSpec.mask_source == "rgb"``); None: the shipped model.
+      solve_impacts: a session whose SceneSpec states fewer solver iterations than liquid
+        falling between its containers needs (``scenes.spec.impact_iterations``) solves that
+        many, for the same liquid (``solve_with``); its status and saved spec say so.
     """
 
     listen: list[str] = field(default_factory=lambda: [DEFAULT_LISTEN])
@@ -65,6 +68,7 @@ class ServeConfig:
     mask_max_age_s: float = MASK_MAX_AGE_S
     idle_after_s: float = IDLE_AFTER_S
     detector: Path | None = None
+    solve_impacts: bool = False
 
     def __post_init__(self) -> None:
         self.state_dir = Path(self.state_dir)

@@ -252,6 +252,7 @@ class Server:
         except ValueError as exc:
             raise WireError(str(exc)) from None
         make_detector(req.spec, self.config)        # a bad mask_source or model fails here, before any work
+        spec = self._solving_impacts(req.spec) if self.config.solve_impacts else req.spec
         with self._lock:
             if sid in self.sessions or sid in self._creating:
                 raise WireError(f"session {sid!r} already exists", Error.ALREADY_EXISTS)
@@ -261,11 +262,11 @@ class Server:
             self._creating.add(sid)
         try:
             t0 = time.monotonic()
-            engine = self.factory(req.spec, device=req.spec.device or self.config.device)
+            engine = self.factory(spec, device=spec.device or self.config.device)
             d = sessions_root(self.config.state_dir) / sid
-            write_session_files(d, req.spec, {"session_id": sid, "client_id": req.client_id, "state": "open",
+            write_session_files(d, spec, {"session_id": sid, "client_id": req.client_id, "state": "open",
                                               "created_ns": time.time_ns(), "server_id": self.config.server_id})
-            s = ServedSession(sid, engine, req.spec, req.client_id, d, self.z, self.keys, self.config,
+            s = ServedSession(sid, engine, spec, req.client_id, d, self.z, self.keys, self.config,
                               self._report_reject)
             with self._lock:
                 self.sessions[sid] = s
@@ -276,6 +277,26 @@ class Server:
         _log.info("session %s created for client %r in %.2f s: %d particles, objects %s", sid, req.client_id,
                   time.monotonic() - t0, engine.n_particles, ", ".join(engine.object_names))
         return s.status(self.config.server_id)
+
+    @staticmethod
+    def _solving_impacts(spec):
+        """A copy of ``spec`` solving the iterations its containers' longest fall needs
+        (``--solve-impacts``); ``spec`` itself when it states enough, or when its scene cannot
+        be read (the engine's build then names what is wrong)."""
+        from ..geometry import MeshError
+        from ..scenes.spec import SpecError, impact_iterations, simulation_settings, solve_with
+        try:
+            need = impact_iterations(spec.scene)
+        except (SpecError, MeshError, ValueError, OSError):
+            return spec
+        if need <= simulation_settings(spec.scene)["iterations"]:
+            return spec
+        out = type(spec)()
+        out.CopyFrom(spec)
+        solve_with(out.scene, need)
+        _log.info("solving %d iterations a step (stated %d) for the falls between the containers of %r", need,
+                  out.scene.simulation.reference_iterations, spec.scene.name)
+        return out
 
     def _close(self, s: ServedSession, why: str) -> None:
         """Close ``s`` once (a client's close and the orphan timer may race). It leaves the
