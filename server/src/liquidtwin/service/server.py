@@ -283,19 +283,18 @@ class Server:
         """A copy of ``spec`` solving the iterations its containers' longest fall needs
         (``--solve-impacts``); ``spec`` itself when it states enough, or when its scene cannot
         be read (the engine's build then names what is wrong)."""
-        from ..geometry import MeshError
-        from ..scenes.spec import SpecError, impact_iterations, simulation_settings, solve_with
+        from ..scenes.spec import impact_iterations, simulation_settings, solve_with
         try:
-            need = impact_iterations(spec.scene)
-        except (SpecError, MeshError, ValueError, OSError):
+            need, stated = impact_iterations(spec.scene), simulation_settings(spec.scene)["iterations"]
+        except Exception:  # noqa: BLE001 - the engine's build names what is wrong with the scene
             return spec
-        if need <= simulation_settings(spec.scene)["iterations"]:
+        if need <= stated:
             return spec
         out = type(spec)()
         out.CopyFrom(spec)
         solve_with(out.scene, need)
         _log.info("solving %d iterations a step (stated %d) for the falls between the containers of %r", need,
-                  out.scene.simulation.reference_iterations, spec.scene.name)
+                  stated, spec.scene.name)
         return out
 
     def _close(self, s: ServedSession, why: str) -> None:
