@@ -64,12 +64,17 @@ def model_for(setup) -> FluidModel:
                              objects=[o.grid for o in setup.objects])
 
 
+def _falls(setup) -> tuple:
+    """(poses at the start, object models, container indices): what the fall rules of
+    ``scenes.liquid_level`` read from ``setup``."""
+    return setup.poses_at(0.0), [o.model for o in setup.objects], [k for k, o in enumerate(setup.objects) if o.container]
+
+
 def fall_height(setup) -> float:
     """The longest free fall (m) liquid can take in ``setup``: from the highest container rim
     down to the lowest container floor, the objects as they stand at the start (a cup that
     pours pivots about its lip, which stays about as high as the upright rim)."""
-    return level_fall_height(setup.poses_at(0.0), [o.model for o in setup.objects],
-                             [k for k, o in enumerate(setup.objects) if o.container])
+    return level_fall_height(*_falls(setup))
 
 
 def impact_iterations(setup) -> int:
@@ -77,9 +82,7 @@ def impact_iterations(setup) -> int:
     :func:`fall_height`, ``sim.iterations_for_impact``) without throwing liquid back out,
     and at least :func:`model_iterations`: the quick catching scene 11 (a 32 cm fall), the
     plate 8, the pouring benchmark's cup 7."""
-    return level_impact_iterations(setup.poses_at(0.0), [o.model for o in setup.objects],
-                                   [k for k, o in enumerate(setup.objects) if o.container], setup.dt,
-                                   0.55 * setup.h, least=model_iterations(setup))
+    return level_impact_iterations(*_falls(setup), setup.dt, 0.55 * setup.h, least=model_iterations(setup))
 
 
 def control_model(setup) -> FluidModel:
