@@ -44,7 +44,7 @@ $(STAMP): $(INSTALL_INPUTS)
 	$(PIP) install --upgrade pip
 	$(PIP) install torch==$(TORCH_VERSION)
 	$(PIP) install -r requirements.lock
-	$(PIP) install --no-build-isolation $(addprefix -e ./,$(PACKAGES))
+	LIQUIDTWIN_REQUIRE_NATIVE=1 $(PIP) install --no-build-isolation $(addprefix -e ./,$(PACKAGES))
 	touch $@
 
 apt:

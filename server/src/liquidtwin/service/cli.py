@@ -59,6 +59,18 @@ def config_from_args(args: argparse.Namespace) -> ServeConfig:
                        solve_impacts=args.solve_impacts)
 
 
+def native_note(device: str) -> str | None:
+    """A warning for the log when sessions on ``device`` would run without the C++ kernels
+    (an install whose extension did not build: ``server/native_build.py``); None otherwise."""
+    from ..sim import fused
+
+    if not device.startswith("cpu") or fused.available("cpu"):
+        return None
+    return ("the C++ kernels (liquidtwin._native) are not built, so sessions run the pure-torch path: "
+            "the same physics, about 23x slower on a full-size pour. Reinstall the server package with a "
+            "C++ compiler (Debian: apt install g++; pip install --no-build-isolation ./server)")
+
+
 def run_serve(args: argparse.Namespace, engine_factory=None) -> int:
     """Serve until SIGTERM/SIGINT; exit code 2 on a configuration error."""
     logging.basicConfig(level=getattr(logging, args.log_level), stream=sys.stderr,
@@ -74,6 +86,9 @@ def run_serve(args: argparse.Namespace, engine_factory=None) -> int:
         print(f"liquidtwin serve: --device {cfg.device} asked for, but torch sees no CUDA device here "
               f"(torch {torch.__version__}); use --device cpu", file=sys.stderr)
         return 2
+    note = native_note(cfg.device)
+    if note:
+        print(f"liquidtwin serve: {note}", file=sys.stderr, flush=True)
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     from .server import Server
