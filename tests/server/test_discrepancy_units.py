@@ -229,6 +229,30 @@ def test_tracker_correction_evidence_reads_drag_wind_and_walls():
     assert near["near_wall_slowing_m_s2"] > 5.0 and abs(wind["near_wall_slowing_m_s2"]) < 0.1
 
 
+def test_drag_on_a_stream_flowing_one_way_is_not_read_as_wind_and_frames_are_the_samples():
+    """Drag and the uniform part are fitted together: a stream moving one way under drag has a
+    mean correction (−2.5|v|v averages to ~−2 m/s² along the flow here) but no uniform part.
+    The t statistic counts camera frames, not corrections: 60 frames of 300 corrections that
+    share each frame's tracker error, and no wind, stay within chance."""
+    from liquidtwin.discrepancy.corrections import Corrections, correction_evidence
+    rng = np.random.default_rng(1)
+    frames, per = 60, 300
+    t = np.repeat(np.arange(frames) / 30.0, per)
+    v = rng.normal(0, 0.3, (frames * per, 3)) + [0.8, -0.5, 0.3]
+    drag = -2.5 * np.linalg.norm(v, axis=1, keepdims=True) * v
+    assert np.abs(drag.mean(0)[[0, 2]]).max() > 1.0                   # what a plain mean calls "uniform"
+    ev = correction_evidence(Corrections(t, v, drag, np.full(len(t), 0.05), 0.006))
+    assert ev["drag_coefficient_per_m"] == pytest.approx(2.5)
+    assert ev["uniform_horizontal_m_s2"] == pytest.approx([0.0, 0.0], abs=1e-9)
+    shared = np.repeat(rng.normal(0, 0.3, (frames, 3)), per, axis=0)   # each frame's own tracker error
+    noisy = correction_evidence(Corrections(t, v, shared + rng.normal(0, 0.1, v.shape), np.full(len(t), 0.05), 0.006))
+    assert noisy["frames"] == frames
+    assert max(abs(x) for x in noisy["uniform_t_stat"]) < 4.0
+    wind = correction_evidence(Corrections(t, v, shared + [0.8, 0.0, -0.3], np.full(len(t), 0.05), 0.006))
+    assert wind["uniform_horizontal_m_s2"] == pytest.approx([0.8, -0.3], abs=0.15)
+    assert wind["uniform_t_stat"][0] > 10 and wind["uniform_t_stat"][1] < -4
+
+
 def test_learned_correction_is_a_shrunk_least_squares_fit_and_steps_like_a_term():
     from liquidtwin.discrepancy.corrections import fit_learned
     from liquidtwin.discrepancy.model import learned_matrix, learned_params
