@@ -87,7 +87,7 @@ SAMPLES = {
     "SceneObject": _object(),
     "Fill": pb.Fill(container="cup", volume_ml=150.0),
     "SimulationSettings": pb.SimulationSettings(h=0.011, dt=1 / 120, iterations=4, spacing=0.006,
-                                                reference_iterations=4),
+                                                reference_iterations=4, max_correction_spacings=0.5),
     "SceneSpec": _spec(),
     "FluidParameters": pb.FluidParameters(lambda_c=0.1, lambda_v=60.0, lambda_s=0.01,
                                           lambda_omega=1.0, relaxation=4.0),

@@ -139,18 +139,20 @@ class Fill(_message.Message):
     def __init__(self, container: _Optional[str] = ..., volume_ml: _Optional[float] = ..., fraction: _Optional[float] = ...) -> None: ...
 
 class SimulationSettings(_message.Message):
-    __slots__ = ("h", "dt", "iterations", "spacing", "reference_iterations")
+    __slots__ = ("h", "dt", "iterations", "spacing", "reference_iterations", "max_correction_spacings")
     H_FIELD_NUMBER: _ClassVar[int]
     DT_FIELD_NUMBER: _ClassVar[int]
     ITERATIONS_FIELD_NUMBER: _ClassVar[int]
     SPACING_FIELD_NUMBER: _ClassVar[int]
     REFERENCE_ITERATIONS_FIELD_NUMBER: _ClassVar[int]
+    MAX_CORRECTION_SPACINGS_FIELD_NUMBER: _ClassVar[int]
     h: float
     dt: float
     iterations: int
     spacing: float
     reference_iterations: int
-    def __init__(self, h: _Optional[float] = ..., dt: _Optional[float] = ..., iterations: _Optional[int] = ..., spacing: _Optional[float] = ..., reference_iterations: _Optional[int] = ...) -> None: ...
+    max_correction_spacings: float
+    def __init__(self, h: _Optional[float] = ..., dt: _Optional[float] = ..., iterations: _Optional[int] = ..., spacing: _Optional[float] = ..., reference_iterations: _Optional[int] = ..., max_correction_spacings: _Optional[float] = ...) -> None: ...
 
 class SceneSpec(_message.Message):
     __slots__ = ("header", "name", "objects", "fills", "simulation", "motion", "motion_params", "duration_s", "cameras")

@@ -103,7 +103,9 @@ def build_scene(spec: pb.SessionSpec, *, device: str = "cpu", progress: bool = F
     try:
         model = FluidModel.create(sim["h"], spacing=sim["spacing"], dt=sim["dt"], iterations=int(sim["iterations"]),
                                   relaxation=relaxation, objects=grids, params=params,
-                                  reference_iterations=sim["reference_iterations"])
+                                  reference_iterations=sim["reference_iterations"],
+                                  max_correction=None if sim["max_correction_spacings"] is None
+                                  else sim["max_correction_spacings"] * sim["spacing"])
     except ValueError as exc:
         raise EngineError(BAD_REQUEST, f"fluid model: {exc}") from None
     state, fills = _fill(model, scene, names, objects, poses, progress)

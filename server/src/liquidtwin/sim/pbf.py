@@ -180,6 +180,17 @@ class FluidModel:
         with λ_c = 0). An integer K_ref scales each iteration's cohesion and tension by
         K_ref / K, so a step applies what K_ref iterations apply and λ_c, λ_s mean the same
         liquid at any K: K then sets only how well the constraints are solved.
+      max_correction: None (SPNets as published), or the longest move, m, one solver
+        iteration may give a particle (longer corrections are shortened along their
+        direction). SPNets' pressure is linear in the excess density, so a small blob that a
+        step's prediction squeezes to twice the rest density (a falling drop whose particles
+        converge) gets corrections longer than h in one iteration: a particle leaves its
+        neighbours at 2 m/s, faster than anything around it. Traced in the pouring task: a
+        drop below the cup's lip at 1.77 ρ0 moved one particle 11 mm in one iteration
+        (README, "Bursting drops"; tests/server/test_pbf_max_correction.py bursts a squeezed
+        blob). Half a rest spacing leaves ordinary iterations alone (their largest
+        corrections are ~0.3 mm at 6 mm spacing in the same pour) and stops the bursts (the
+        control tasks' model: ``generate.world.CONTROL_MAX_CORRECTION_SPACINGS``).
     """
 
     h: float
@@ -200,6 +211,7 @@ class FluidModel:
     max_pieces: int
     backend: str
     reference_iterations: int | None = None
+    max_correction: float | None = None
     _normal_dilation: float = field(default=0.0, repr=False)
 
     @staticmethod
@@ -208,7 +220,7 @@ class FluidModel:
                terms=(), collision_distance: float | None = None, relaxation: float = 3.0,
                damp: float = 1.0, max_speed: float | None = None, skin: float | None = None,
                max_pieces: int = 256, backend: str = "auto",
-               reference_iterations: int | None = None) -> "FluidModel":
+               reference_iterations: int | None = None, max_correction: float | None = None) -> "FluidModel":
         """A model with calibrated rest density and stiffness.
 
         ``params`` overrides defaults (λ_ω = 1, λ_c = 0.1, λ_s = 0, λ_v = 60 1/s,
@@ -219,6 +231,10 @@ class FluidModel:
         if reference_iterations is not None and (isinstance(reference_iterations, bool) or reference_iterations < 1
                                                 or int(reference_iterations) != reference_iterations):
             raise ValueError(f"reference_iterations must be None or a whole number >= 1, got {reference_iterations!r}")
+        if max_correction is not None and not (isinstance(max_correction, (int, float))
+                                               and not isinstance(max_correction, bool)
+                                               and math.isfinite(max_correction) and max_correction > 0):
+            raise ValueError(f"max_correction must be None or a distance > 0 m, got {max_correction!r}")
         if backend not in ("auto", "torch", "fused"):
             raise ValueError(f"backend must be auto, torch or fused, got {backend!r}")
         if backend == "fused" and not fused.available():
@@ -244,6 +260,7 @@ class FluidModel:
             relaxation=float(relaxation), damp=float(damp), max_speed=max_speed,
             skin=DEFAULT_SKIN * h if skin is None else float(skin), max_pieces=int(max_pieces), backend=backend,
             reference_iterations=None if reference_iterations is None else int(reference_iterations),
+            max_correction=None if max_correction is None else float(max_correction),
             _normal_dilation=dil,
         )
 
@@ -458,6 +475,8 @@ def step(model: FluidModel, state: FluidState, poses: torch.Tensor | None = None
         pressure, tension = lists.pressure_tension(x, omega, nrm, count)
         scale = torch.clamp(count / (1.0 + model.relaxation), min=model.damp)[:, None]
         delta = (pressure + coh * nrm + tens * tension) / scale
+        if model.max_correction is not None:
+            delta = delta * torch.clamp(model.max_correction / delta.norm(dim=1, keepdim=True).clamp_min(1e-12), max=1.0)
         for term in model.terms:
             d = term.position_delta(model, x, ids)
             if d is not None:
