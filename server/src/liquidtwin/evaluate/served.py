@@ -19,14 +19,16 @@ import numpy as np
 
 def _engine(setup):
     """(spec, engine): a session of ``setup``'s spec, solved with the control tasks'
-    iterations (``generate.world.control_model``; the offline runs' model) for the same liquid."""
+    iterations and correction cap (``generate.world.control_model``; the offline runs' model)
+    for the same liquid."""
     from liquidtwin_proto import liquidtwin_pb2 as pb
 
     from ..generate.generator import scene_spec
-    from ..generate.world import impact_iterations
+    from ..generate.world import CONTROL_MAX_CORRECTION_SPACINGS, impact_iterations
     from ..scenes.spec import solve_with
     from ..session import SessionEngine
     spec = solve_with(scene_spec(setup), impact_iterations(setup))
+    spec.simulation.max_correction_spacings = CONTROL_MAX_CORRECTION_SPACINGS
     eng = SessionEngine.create(pb.SessionSpec(scene=spec, tracking=pb.OPEN_LOOP))
     eng.advance(0.0, {})
     return spec, eng

@@ -85,15 +85,24 @@ def impact_iterations(setup) -> int:
     return level_impact_iterations(*_falls(setup), setup.dt, 0.55 * setup.h, least=model_iterations(setup))
 
 
+#: The control tasks' model moves a particle at most this many rest spacings per solver
+#: iteration (``FluidModel.max_correction``): no drop bursts (README, "Bursting drops").
+CONTROL_MAX_CORRECTION_SPACINGS = 0.5
+
+
 def control_model(setup) -> FluidModel:
     """:func:`model_for`'s liquid solved with :func:`impact_iterations`: the model the control
     tasks (catching, the plate, pouring) plan with and are scored in, where what counts is
     where falling liquid lands. The cohesion stays that of :func:`model_iterations`
     (``reference_iterations``), so only how well the constraints are solved changes. At the
     model's 4 iterations the quick catching MPC lost 0.7-4.2 % of the liquid, thrown back out
-    of the catcher faster than it fell in (README, "Solver iterations and impacts")."""
-    return FluidModel.create(setup.h, dt=setup.dt, iterations=impact_iterations(setup), relaxation=MODEL_RELAXATION,
-                             objects=[o.grid for o in setup.objects], reference_iterations=model_iterations(setup))
+    of the catcher faster than it fell in (README, "Solver iterations and impacts"). No
+    iteration moves a particle more than :data:`CONTROL_MAX_CORRECTION_SPACINGS` spacings:
+    without that cap, drops squeezed by their own fall burst and threw liquid out of the bowl
+    (README, "Bursting drops")."""
+    m = FluidModel.create(setup.h, dt=setup.dt, iterations=impact_iterations(setup), relaxation=MODEL_RELAXATION,
+                          objects=[o.grid for o in setup.objects], reference_iterations=model_iterations(setup))
+    return m.replace(max_correction=CONTROL_MAX_CORRECTION_SPACINGS * m.spacing)
 
 
 @dataclass(frozen=True)
