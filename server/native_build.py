@@ -4,8 +4,9 @@ Kept apart from setup.py so the tests can check it without running a build.
 
 - Flags per machine: x86-64 builds for ``x86-64-v2`` (SSE4.2, any x86 CPU since 2009;
   ``x86-64-v3`` (AVX2) with ``-ffp-contract=off`` ran a full-size pour 2 % faster, bit for bit
-  the same: not worth leaving older machines behind). Other machines (aarch64: Jetson, Graviton, Raspberry Pi; ppc64le …) get
-  the compiler's default target: an ``-march=x86-64-v2`` there is a compile error.
+  the same: not worth leaving older machines behind). Other machines (aarch64: Jetson,
+  Graviton, Raspberry Pi; ppc64le …) get the compiler's default target: an
+  ``-march=x86-64-v2`` there is a compile error.
 - A failed build does not fail the install: the package runs on the pure-torch reference path
   (the same physics, equal step by step to rounding, but ~23x slower: the first 150 steps of a
   full-size pour took 72.7 s against 3.2 s on one thread, ``bench/pour_rollout.py --steps 150

@@ -180,9 +180,10 @@ class FluidModel:
         with λ_c = 0). An integer K_ref scales each iteration's cohesion and tension by
         K_ref / K, so a step applies what K_ref iterations apply and λ_c, λ_s mean the same
         liquid at any K: K then sets only how well the constraints are solved.
-      max_correction: None (SPNets as published), or the longest move, m, one solver
-        iteration may give a particle (longer corrections are shortened along their
-        direction). SPNets' pressure is linear in the excess density, so a small blob that a
+      max_correction: None (SPNets as published), or the longest move, m, the fluid's
+        constraints (pressure, cohesion, tension) may give a particle in one solver
+        iteration; longer corrections are shortened along their direction. Extra terms'
+        moves (the perception tracker's) and the collision push-out are not capped. SPNets' pressure is linear in the excess density, so a small blob that a
         step's prediction squeezes to twice the rest density (a falling drop whose particles
         converge) gets corrections longer than h in one iteration: a particle leaves its
         neighbours at 2 m/s, faster than anything around it. Traced in the pouring task: a
