@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 import platform
 
-X86 = ("x86_64", "amd64", "i686", "i386", "x86")
+X86 = ("x86_64", "amd64")                 # 64-bit x86 only: -march=x86-64-v2 refuses 32-bit targets
 
 
 def compile_args(machine: str | None = None) -> list[str]:

@@ -189,9 +189,12 @@ class FluidModel:
         neighbours at 2 m/s, faster than anything around it. Traced in the pouring task: a
         drop below the cup's lip at 1.77 ρ0 moved one particle 11 mm in one iteration
         (README, "Bursting drops"; tests/server/test_pbf_max_correction.py bursts a squeezed
-        blob). Half a rest spacing leaves ordinary iterations alone (their largest
-        corrections are ~0.3 mm at 6 mm spacing in the same pour) and stops the bursts (the
-        control tasks' model: ``generate.world.CONTROL_MAX_CORRECTION_SPACINGS``).
+        blob). Half a rest spacing stops the bursts and shortens little else: over the
+        control tasks' 12 ml pour (6.05 mm spacing, every step of the run and of its MPC) an
+        iteration's largest correction is a median 1.1 mm, and 1.8 in 10,000 corrections
+        exceed the cap (the control tasks' model:
+        ``generate.world.CONTROL_MAX_CORRECTION_SPACINGS``). An iteration whose corrections
+        all stay under the cap is unchanged bit for bit.
     """
 
     h: float
