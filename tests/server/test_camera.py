@@ -528,7 +528,7 @@ def test_bench_camera_records(tmp_path):
 def test_box_reach_test_agrees_with_dense_sampling():
     """The early exit of the occlusion march: a segment 'reaches' an object's grid box exactly
     when some point along it lies in the (rotated, shifted) box — checked by sampling."""
-    from liquidtwin.camera.occlusion import _frames, _reaches_a_box
+    from liquidtwin.sim.segments import _frames, _reaches_a_box
     from liquidtwin.sim import SDFGrid
 
     g = torch.Generator().manual_seed(3)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import torch
 
 from ..sim.sdf import quat_to_matrix
+from ..sim.segments import world_points as _check_points
 
 
 def _floats(values) -> list:
@@ -52,17 +53,6 @@ def matrix_to_quat(R: torch.Tensor) -> torch.Tensor:
     q = torch.stack([torch.as_tensor(c, dtype=torch.float64) for c in q])
     q = q / q.norm()
     return -q if q[3] < 0 else q
-
-
-def _check_points(x: torch.Tensor, what: str = "points") -> torch.Tensor:
-    x = torch.as_tensor(x)
-    if x.dim() != 2 or x.shape[1] != 3:
-        raise ValueError(f"{what} must be (N, 3) world positions in m, got shape {tuple(x.shape)}")
-    if not x.is_floating_point():
-        x = x.to(torch.get_default_dtype())
-    if not bool(torch.isfinite(x).all()):
-        raise ValueError(f"{what} contain NaN or inf")
-    return x
 
 
 @dataclass(frozen=True, eq=False)
