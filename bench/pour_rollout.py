@@ -13,7 +13,8 @@ per step, and their share of the time. ``--profile`` runs it under cProfile and 
 spent inside the C++ kernels (``liquidtwin._native``) and outside them (Python and small
 torch ops; cProfile slows the calls a little). ``--backend torch`` runs the pure-torch
 reference path instead of the kernels: what an install whose extension did not build runs
-(``server/native_build.py``). Prints one JSON record and appends it to bench/history.jsonl.
+(``server/native_build.py``). ``--cut-wall-pairs`` cuts the pairs a wall separates
+(``sim.walls``). Prints one JSON record and appends it to bench/history.jsonl.
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=None, help="steps to roll (default: the whole recording)")
     p.add_argument("--no-history", action="store_true", help="print only; do not append to bench/history.jsonl")
     p.add_argument("--profile", action="store_true", help="split the time into the C++ kernels and the rest (cProfile)")
+    p.add_argument("--cut-wall-pairs", action="store_true",
+                   help="cut neighbour pairs that a wall separates (FluidModel.wall_pairs False, as the control "
+                        "tasks; their cost lands in the list builds)")
     p.add_argument("--backend", choices=("auto", "torch"), default="auto",
                    help="auto: the C++ kernels where built; torch: the pure-torch reference path (default: auto)")
     args = p.parse_args()
@@ -53,7 +57,7 @@ def main() -> None:
         generate("pour_partial", DEFAULT, effects=[parse_effect("drag")], seed=4, quick=False,
                  choices={"source": "cup", "fraction": 0.9})
     sim = Simulator(load_episode(args.recording))
-    sim.model = sim.model.replace(backend=args.backend)
+    sim.model = sim.model.replace(backend=args.backend, wall_pairs=not args.cut_wall_pairs)
     steps = sim.steps if args.steps is None else min(args.steps, sim.steps)
 
     builds, build_s = 0, 0.0
@@ -87,7 +91,7 @@ def main() -> None:
     n0 = int(traj.x[0].shape[0])
     particle_steps = sum(int(x.shape[0]) for x in traj.x[1:])
     emit({"what": "pour_rollout", "recording": args.recording.name, "particles": n0, "steps": steps,
-          "iterations": int(sim.model.iterations), "backend": args.backend, "threads": torch.get_num_threads(), "seconds": round(wall, 2),
+          "iterations": int(sim.model.iterations), "backend": args.backend, "cut_wall_pairs": args.cut_wall_pairs, "threads": torch.get_num_threads(), "seconds": round(wall, 2),
           "particle_steps_per_s": round(particle_steps / wall), "neighbor_builds_per_step": round(builds / steps, 2),
           "neighbor_build_share": round(build_s / wall, 3), **split}, history=not args.no_history)
 

@@ -707,6 +707,157 @@ std::vector<torch::Tensor> collide_pieces_backward(
   return {gx, gd, gpa, gpb};
 }
 
+// The march of segment_blocked for one segment a -> b: true when some sample lies deeper than
+// tl inside an object (at most `rounds` samples; module doc of liquidtwin/sim/segments.py).
+template <typename T>
+bool march(const T* a, const T* b, const std::vector<Grid<T>>& gs, const std::vector<Frame<T>>& frames, T tl, T st,
+           int64_t rounds) {
+  const int64_t m = static_cast<int64_t>(gs.size());
+  T q0[3], d[3], len2 = 0;
+  for (int k = 0; k < 3; ++k) { q0[k] = a[k]; d[k] = b[k] - q0[k]; len2 += d[k] * d[k]; }
+  const T len = std::sqrt(len2);
+  const T inv_len = T(1) / std::max(len, T(1e-30));
+  for (int k = 0; k < 3; ++k) d[k] *= inv_len;
+  T s = 0;
+  for (int64_t r = 0; r < rounds; ++r) {
+    T q[3] = {q0[0] + s * d[0], q0[1] + s * d[1], q0[2] + s * d[2]};
+    T f = std::numeric_limits<T>::infinity();
+    for (int64_t j = 0; j < m; ++j) {
+      T loc[3], val, outside;
+      frames[j].local(q, loc);
+      gs[j].sample(loc, val, outside);
+      f = std::min(f, outside > 0 ? std::max(outside, val - outside) : val);
+    }
+    if (f < -tl) return true;
+    s += std::max(f, st);
+    if (!(s < len)) return false;
+    // does the rest of the segment meet any object's grid box?
+    const T rest = std::max(len - s, T(0));
+    for (int k = 0; k < 3; ++k) q[k] = q0[k] + s * d[k];
+    bool meets = false;
+    for (int64_t j = 0; j < m && !meets; ++j) {
+      T p[3], u[3];
+      frames[j].local(q, p);
+      const auto& R = frames[j].R;
+      for (int k = 0; k < 3; ++k) u[k] = d[0] * R[k] + d[1] * R[3 + k] + d[2] * R[6 + k];
+      T enter = 0, leave = rest;
+      for (int k = 0; k < 3; ++k) {
+        const T lo = gs[j].origin[k], hi = lo + gs[j].extent[k] * gs[j].cell;
+        const T inv = T(1) / (std::abs(u[k]) < T(1e-12) ? T(1e-12) : u[k]);
+        const T ta = (lo - p[k]) * inv, tb = (hi - p[k]) * inv;
+        enter = std::max(enter, std::min(ta, tb));
+        leave = std::min(leave, std::max(ta, tb));
+      }
+      meets = enter <= leave;
+    }
+    if (!meets) return false;
+  }
+  return false;
+}
+
+// Candidate pairs of liquidtwin/sim/walls.py (facing_pairs), same rule: each particle within
+// `reach` (lower bound) of an object takes its nearest object's SDF s_i (value) and outward
+// normal n_i (the normalised gradient of the trilinear value, value_grad, rotated to the
+// world); pair (i, k) is a
+// candidate when x_k lies beyond i's tangent plane, (x_i - x_k).n_i > s_i - slack, or x_i
+// beyond k's, (x_i - x_k).n_k < slack - s_k. CSR pairs row_ptr (N + 1,), col (P,) -> (P,) bool.
+// With step > 0 a candidate stays True only when the march of segment_blocked (tolerance tol,
+// smallest step `step`) from the lower-indexed particle to the other finds material: the pairs a
+// wall separates (liquidtwin/sim/walls.py, cut_pairs).
+torch::Tensor facing_pairs(torch::Tensor x, torch::Tensor row_ptr, torch::Tensor col, torch::Tensor poses,
+                           std::vector<torch::Tensor> grids, torch::Tensor origins, torch::Tensor cells,
+                           double slack, double reach, double tol, double step) {
+  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.device().is_cpu(), "points must be CPU (N, 3)");
+  x = x.contiguous();
+  row_ptr = row_ptr.to(torch::kLong).contiguous();
+  col = col.to(torch::kLong).contiguous();
+  poses = poses.to(x.scalar_type()).contiguous();
+  const int64_t n = x.size(0), m = static_cast<int64_t>(grids.size());
+  TORCH_CHECK(row_ptr.dim() == 1 && row_ptr.size(0) == n + 1, "row_ptr must be (N + 1,)");
+  TORCH_CHECK(poses.dim() == 2 && poses.size(0) == m && poses.size(1) == 7, "poses must be (M, 7)");
+  auto out = torch::zeros({col.size(0)}, x.options().dtype(torch::kBool));
+  if (n == 0 || m == 0 || col.size(0) == 0) return out;
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "facing_pairs", [&] {
+    using T = scalar_t;
+    auto gs = make_grids<T>(grids, origins, cells);
+    auto frames = make_frames<T>(poses);
+    const T* px = x.data_ptr<T>();
+    const int64_t* rp = row_ptr.data_ptr<int64_t>();
+    const int64_t* pc = col.data_ptr<int64_t>();
+    bool* o = out.data_ptr<bool>();
+    std::vector<T> S(n, std::numeric_limits<T>::infinity()), N(3 * n, T(0));
+    const T rc = static_cast<T>(reach), sl = static_cast<T>(slack), tl = static_cast<T>(tol), st = static_cast<T>(step);
+    const int64_t rounds = step > 0 ? static_cast<int64_t>(std::ceil(reach / step)) + 2 : 0;
+    at::parallel_for(0, n, 256, [&](int64_t b, int64_t e) {
+      for (int64_t i = b; i < e; ++i) {
+        T best = std::numeric_limits<T>::infinity();
+        int64_t jb = -1;
+        T loc[3], lb[3];
+        for (int64_t j = 0; j < m; ++j) {
+          frames[j].local(px + 3 * i, loc);
+          const T f = gs[j].lower_bound_below(loc, best);
+          if (f < best) { best = f; jb = j; for (int a = 0; a < 3; ++a) lb[a] = loc[a]; }
+        }
+        if (!(best < rc)) continue;
+        T gl[3];
+        S[i] = gs[jb].value_grad(lb, gl);
+        const T nn = std::max(std::sqrt(gl[0] * gl[0] + gl[1] * gl[1] + gl[2] * gl[2]), T(1e-12));
+        const T* R = frames[jb].R;
+        for (int a = 0; a < 3; ++a) N[3 * i + a] = (R[3 * a] * gl[0] + R[3 * a + 1] * gl[1] + R[3 * a + 2] * gl[2]) / nn;
+      }
+    });
+    at::parallel_for(0, n, 256, [&](int64_t b, int64_t e) {
+      for (int64_t i = b; i < e; ++i) {
+        for (int64_t q = rp[i]; q < rp[i + 1]; ++q) {
+          const int64_t k = pc[q];
+          if (std::isinf(S[i]) && std::isinf(S[k])) continue;
+          const T d[3] = {px[3 * i] - px[3 * k], px[3 * i + 1] - px[3 * k + 1], px[3 * i + 2] - px[3 * k + 2]};
+          const T di = d[0] * N[3 * i] + d[1] * N[3 * i + 1] + d[2] * N[3 * i + 2];
+          const T dk = d[0] * N[3 * k] + d[1] * N[3 * k + 1] + d[2] * N[3 * k + 2];
+          const bool cand = (di > S[i] - sl) || (dk < sl - S[k]);
+          if (cand && step > 0) {
+            const int64_t lo = std::min(i, k), hi = std::max(i, k);
+            o[q] = march<T>(px + 3 * lo, px + 3 * hi, gs, frames, tl, st, rounds);
+          } else {
+            o[q] = cand;
+          }
+        }
+      }
+    });
+  });
+  return out;
+}
+
+// The CSR lists without the pairs a wall separates (facing_pairs with the march): returns
+// (row_ptr, col), the inputs themselves when no pair is cut.
+std::vector<torch::Tensor> cut_wall_pairs(torch::Tensor x, torch::Tensor row_ptr, torch::Tensor col,
+                                          torch::Tensor poses, std::vector<torch::Tensor> grids, torch::Tensor origins,
+                                          torch::Tensor cells, double slack, double reach, double tol, double step) {
+  TORCH_CHECK(step > 0, "cut_wall_pairs needs a march step > 0");
+  auto cut = facing_pairs(x, row_ptr, col, poses, grids, origins, cells, slack, reach, tol, step);
+  const bool* c = cut.data_ptr<bool>();
+  const int64_t p = cut.size(0), n = row_ptr.size(0) - 1;
+  int64_t dropped = 0;
+  for (int64_t q = 0; q < p; ++q) dropped += c[q];
+  if (dropped == 0) return {row_ptr, col};
+  auto rp = row_ptr.to(torch::kLong).contiguous();
+  auto cl = col.to(torch::kLong).contiguous();
+  auto new_ptr = torch::empty({n + 1}, rp.options());
+  auto new_col = torch::empty({p - dropped}, cl.options());
+  const int64_t* r = rp.data_ptr<int64_t>();
+  const int64_t* k = cl.data_ptr<int64_t>();
+  int64_t* nr = new_ptr.data_ptr<int64_t>();
+  int64_t* nc = new_col.data_ptr<int64_t>();
+  int64_t w = 0;
+  nr[0] = 0;
+  for (int64_t i = 0; i < n; ++i) {
+    for (int64_t q = r[i]; q < r[i + 1]; ++q)
+      if (!c[q]) nc[w++] = k[q];
+    nr[i + 1] = w;
+  }
+  return {new_ptr, new_col};
+}
+
 // Occlusion test of liquidtwin/camera/occlusion.py (segment_blocked), same marching rule: does
 // the segment start_i -> end_i pass deeper than `tol` into any object? Samples at arc lengths
 // s_{k+1} = s_k + max(f(s_k), step), f the lower bound on the distance to the nearest object
@@ -742,47 +893,7 @@ torch::Tensor segment_blocked(torch::Tensor start, torch::Tensor end, torch::Ten
     }
     const int64_t rounds = static_cast<int64_t>(std::ceil(longest / step)) + 2;
     at::parallel_for(0, n, 64, [&](int64_t b, int64_t e) {
-      for (int64_t i = b; i < e; ++i) {
-        T q0[3], d[3], len2 = 0;
-        for (int a = 0; a < 3; ++a) { q0[a] = ps[3 * i + a]; d[a] = pe[3 * i + a] - q0[a]; len2 += d[a] * d[a]; }
-        const T len = std::sqrt(len2);
-        const T inv_len = T(1) / std::max(len, T(1e-30));
-        for (int a = 0; a < 3; ++a) d[a] *= inv_len;
-        T s = 0;
-        for (int64_t r = 0; r < rounds; ++r) {
-          T q[3] = {q0[0] + s * d[0], q0[1] + s * d[1], q0[2] + s * d[2]};
-          T f = std::numeric_limits<T>::infinity();
-          for (int64_t j = 0; j < m; ++j) {
-            T loc[3], val, outside;
-            frames[j].local(q, loc);
-            gs[j].sample(loc, val, outside);
-            f = std::min(f, outside > 0 ? std::max(outside, val - outside) : val);
-          }
-          if (f < -tl) { o[i] = true; break; }
-          s += std::max(f, st);
-          if (!(s < len)) break;
-          // does the rest of the segment meet any object's grid box?
-          const T rest = std::max(len - s, T(0));
-          for (int a = 0; a < 3; ++a) q[a] = q0[a] + s * d[a];
-          bool meets = false;
-          for (int64_t j = 0; j < m && !meets; ++j) {
-            T p[3], u[3];
-            frames[j].local(q, p);
-            const auto& R = frames[j].R;
-            for (int a = 0; a < 3; ++a) u[a] = d[0] * R[a] + d[1] * R[3 + a] + d[2] * R[6 + a];
-            T enter = 0, leave = rest;
-            for (int a = 0; a < 3; ++a) {
-              const T lo = gs[j].origin[a], hi = lo + gs[j].extent[a] * gs[j].cell;
-              const T inv = T(1) / (std::abs(u[a]) < T(1e-12) ? T(1e-12) : u[a]);
-              const T ta = (lo - p[a]) * inv, tb = (hi - p[a]) * inv;
-              enter = std::max(enter, std::min(ta, tb));
-              leave = std::min(leave, std::max(ta, tb));
-            }
-            meets = enter <= leave;
-          }
-          if (!meets) break;
-        }
-      }
+      for (int64_t i = b; i < e; ++i) o[i] = march<T>(ps + 3 * i, pe + 3 * i, gs, frames, tl, st, rounds);
     });
   });
   return out;

@@ -494,6 +494,9 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("viscosity", &viscosity);
   m.def("viscosity_backward", &viscosity_backward);
   m.def("sdf_lower_bounds", &collide::lower_bounds, "lower bounds on every object's SDF at points (N, M)");
+  m.def("facing_pairs", &collide::facing_pairs,
+        "neighbour pairs one of which lies beyond the other's wall plane (and, with step > 0, that a wall separates)");
+  m.def("cut_wall_pairs", &collide::cut_wall_pairs, "neighbour lists without the pairs a wall separates");
   m.def("segment_blocked", &collide::segment_blocked, "occlusion: does each segment pass through an object");
   m.def("collide_plan", &collide::plan, "which particles collide with which objects, in how many pieces");
   m.def("collide_pieces", &collide::collide_pieces, "anti-clipped particle moves with SDF push-out");

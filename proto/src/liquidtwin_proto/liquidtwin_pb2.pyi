@@ -139,20 +139,22 @@ class Fill(_message.Message):
     def __init__(self, container: _Optional[str] = ..., volume_ml: _Optional[float] = ..., fraction: _Optional[float] = ...) -> None: ...
 
 class SimulationSettings(_message.Message):
-    __slots__ = ("h", "dt", "iterations", "spacing", "reference_iterations", "max_correction_spacings")
+    __slots__ = ("h", "dt", "iterations", "spacing", "reference_iterations", "max_correction_spacings", "cut_wall_pairs")
     H_FIELD_NUMBER: _ClassVar[int]
     DT_FIELD_NUMBER: _ClassVar[int]
     ITERATIONS_FIELD_NUMBER: _ClassVar[int]
     SPACING_FIELD_NUMBER: _ClassVar[int]
     REFERENCE_ITERATIONS_FIELD_NUMBER: _ClassVar[int]
     MAX_CORRECTION_SPACINGS_FIELD_NUMBER: _ClassVar[int]
+    CUT_WALL_PAIRS_FIELD_NUMBER: _ClassVar[int]
     h: float
     dt: float
     iterations: int
     spacing: float
     reference_iterations: int
     max_correction_spacings: float
-    def __init__(self, h: _Optional[float] = ..., dt: _Optional[float] = ..., iterations: _Optional[int] = ..., spacing: _Optional[float] = ..., reference_iterations: _Optional[int] = ..., max_correction_spacings: _Optional[float] = ...) -> None: ...
+    cut_wall_pairs: bool
+    def __init__(self, h: _Optional[float] = ..., dt: _Optional[float] = ..., iterations: _Optional[int] = ..., spacing: _Optional[float] = ..., reference_iterations: _Optional[int] = ..., max_correction_spacings: _Optional[float] = ..., cut_wall_pairs: _Optional[bool] = ...) -> None: ...
 
 class SceneSpec(_message.Message):
     __slots__ = ("header", "name", "objects", "fills", "simulation", "motion", "motion_params", "duration_s", "cameras")

@@ -19,8 +19,8 @@ import numpy as np
 
 def _engine(setup):
     """(spec, engine): a session of ``setup``'s spec, solved with the control tasks'
-    iterations and correction cap (``generate.world.control_model``; the offline runs' model)
-    for the same liquid."""
+    iterations, correction cap and wall cut (``generate.world.control_model``; the offline
+    runs' model) for the same liquid."""
     from liquidtwin_proto import liquidtwin_pb2 as pb
 
     from ..generate.generator import scene_spec
@@ -29,6 +29,7 @@ def _engine(setup):
     from ..session import SessionEngine
     spec = solve_with(scene_spec(setup), impact_iterations(setup))
     spec.simulation.max_correction_spacings = CONTROL_MAX_CORRECTION_SPACINGS
+    spec.simulation.cut_wall_pairs = True
     eng = SessionEngine.create(pb.SessionSpec(scene=spec, tracking=pb.OPEN_LOOP))
     eng.advance(0.0, {})
     return spec, eng

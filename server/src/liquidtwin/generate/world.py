@@ -99,10 +99,12 @@ def control_model(setup) -> FluidModel:
     of the catcher faster than it fell in (README, "Solver iterations and impacts"). No
     iteration moves a particle more than :data:`CONTROL_MAX_CORRECTION_SPACINGS` spacings:
     without that cap, drops squeezed by their own fall burst and threw liquid out of the bowl
-    (README, "Bursting drops")."""
+    (README, "Bursting drops"). Neighbour pairs that a wall separates are cut
+    (``FluidModel.wall_pairs`` False): without that, the pour's last drops hung under the cup's
+    base, held by the liquid inside it (README, "Cohesion through walls")."""
     m = FluidModel.create(setup.h, dt=setup.dt, iterations=impact_iterations(setup), relaxation=MODEL_RELAXATION,
                           objects=[o.grid for o in setup.objects], reference_iterations=model_iterations(setup))
-    return m.replace(max_correction=CONTROL_MAX_CORRECTION_SPACINGS * m.spacing)
+    return m.replace(max_correction=CONTROL_MAX_CORRECTION_SPACINGS * m.spacing, wall_pairs=False)
 
 
 @dataclass(frozen=True)

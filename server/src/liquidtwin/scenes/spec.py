@@ -109,15 +109,16 @@ def solve_with(spec: pb.SceneSpec, iterations: int) -> pb.SceneSpec:
 
 
 def simulation_settings(spec: pb.SceneSpec) -> dict:
-    """{h, dt, iterations, spacing, reference_iterations, max_correction_spacings} with the
-    defaults filled in (reference_iterations None: SPNets' cohesion, in full every iteration;
-    max_correction_spacings None: no cap on a solver iteration's move)."""
+    """{h, dt, iterations, spacing, reference_iterations, max_correction_spacings,
+    cut_wall_pairs} with the defaults filled in (reference_iterations None: SPNets' cohesion,
+    in full every iteration; max_correction_spacings None: no cap on a solver iteration's
+    move; cut_wall_pairs False: pairs interact through walls, as SPNets)."""
     s = spec.simulation
     h = s.h or DEFAULT_SIMULATION["h"]
     return {"h": h, "dt": s.dt or DEFAULT_SIMULATION["dt"],
             "iterations": s.iterations or DEFAULT_SIMULATION["iterations"], "spacing": s.spacing or 0.55 * h,
             "reference_iterations": s.reference_iterations or None,
-            "max_correction_spacings": s.max_correction_spacings or None}
+            "max_correction_spacings": s.max_correction_spacings or None, "cut_wall_pairs": bool(s.cut_wall_pairs)}
 
 
 def _mesh_object(o: pb.SceneObject, base: Path) -> ObjectModel:

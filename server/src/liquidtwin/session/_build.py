@@ -105,7 +105,8 @@ def build_scene(spec: pb.SessionSpec, *, device: str = "cpu", progress: bool = F
                                   relaxation=relaxation, objects=grids, params=params,
                                   reference_iterations=sim["reference_iterations"],
                                   max_correction=None if sim["max_correction_spacings"] is None
-                                  else sim["max_correction_spacings"] * sim["spacing"])
+                                  else sim["max_correction_spacings"] * sim["spacing"],
+                                  wall_pairs=not sim["cut_wall_pairs"])
     except ValueError as exc:
         raise EngineError(BAD_REQUEST, f"fluid model: {exc}") from None
     state, fills = _fill(model, scene, names, objects, poses, progress)

@@ -134,6 +134,24 @@ def segment_blocked(start, end, poses, objects, tolerance: float, min_step: floa
                                    float(min_step))
 
 
+def facing_pairs(x, row_ptr, col, poses, objects, slack: float, reach: float, tolerance: float = 0.0,
+                 min_step: float = 0.0):
+    """:func:`liquidtwin.sim.walls.facing_pairs` in one C++ pass: (P,) bool (no gradient). With
+    ``min_step`` > 0 the candidates are also marched (:func:`segment_blocked`'s rule): True
+    marks the pairs a wall separates."""
+    grids, origins, cells = _grids(objects, x.dtype)
+    return _native.facing_pairs(x.detach().contiguous(), row_ptr, col, poses.detach().to(x.dtype), grids, origins,
+                                cells, float(slack), float(reach), float(tolerance), float(min_step))
+
+
+def cut_wall_pairs(x, row_ptr, col, poses, objects, slack: float, reach: float, tolerance: float, min_step: float):
+    """:func:`liquidtwin.sim.walls.cut_pairs` in one C++ call: (row_ptr, col) without the pairs
+    :func:`facing_pairs` (with the march) marks; the inputs themselves when none is."""
+    grids, origins, cells = _grids(objects, x.dtype)
+    return tuple(_native.cut_wall_pairs(x.detach().contiguous(), row_ptr, col, poses.detach().to(x.dtype), grids,
+                                        origins, cells, float(slack), float(reach), float(tolerance), float(min_step)))
+
+
 def sdf_lower_bounds(x, poses, objects):
     """(N, M) lower bounds on every object's SDF at points x (N, 3) m, objects at poses (M, 7)
     — :meth:`SDFGrid.lower_bound_local` in one C++ pass (no gradient)."""
