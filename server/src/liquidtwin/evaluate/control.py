@@ -23,7 +23,9 @@ the benchmark before stop 28) 60 ml fill 16 %: nothing flows until ~85° of tilt
 third of the liquid leaves in one surge. Table: asked, in the bowl, error, spilled,
 s per update; ``pouring.png``. Target (issue 7): max error ≤ 5 g, mean ≤ 2 g, nothing
 spilled (thesis 11 g / 5 g) — the table also gives the errors relative to each ask, which is
-what carries over between cup sizes.
+what carries over between cup sizes. ``--full`` runs the thesis's scale instead: the full scene
+and the full-size cup with 300 ml in it (~2.9k particles), asks 75–275 ml in 20 ml steps
+(slow: minutes of MPC per ask; ``--targets`` picks some).
 
 Table: per target, the fraction of the liquid in the target bowl, in other bowls, spilled;
 the maximum tilt; wall time per MPC update. Results: ``results.json`` + ``control.json``
@@ -78,9 +80,13 @@ def configure(p) -> None:
     p.add_argument("--approach-rate", type=float, default=None, metavar="RAD_S",
                    help="pouring: cap on the cup's forward tilt rate from 20 deg on, rad/s (default: none, "
                         "the full 2 rad/s; see control.pour)")
-    p.add_argument("--cup-scale", type=float, default=POUR_CUP_SCALE, metavar="S",
-                   help="pouring: the cup's lengths (not its 3 mm wall) × S, in (0, 1] (default: %(default).3f = "
-                        "QUICK_FILL^(1/3), so 60 ml fill it as 300 ml fill the full-size cup; 1: the full-size cup)")
+    p.add_argument("--full", action="store_true",
+                   help="pouring: the thesis's scale — the full scene, the full-size cup with %g ml in it, asks "
+                        "75,95,…,275 ml (default: the quick scene)" % POUR_FULL_FILL_ML)
+    p.add_argument("--cup-scale", type=float, default=None, metavar="S",
+                   help="pouring: the cup's lengths (not its 3 mm wall) × S, in (0, 1] (default: %.3f = "
+                        "QUICK_FILL^(1/3), so 60 ml fill it as 300 ml fill the full-size cup; 1: the full-size cup; "
+                        "--full: 1)" % POUR_CUP_SCALE)
     p.add_argument("--served", type=float, default=0.0, metavar="FPS",
                    help="plate / catching MPC: run the task as a session serves it — set on a session engine, "
                         "one Control per frame at FPS, a simulated robot moving the object to each Control's "
@@ -144,6 +150,9 @@ POUR_FILL_ML = 60.0
 #: The quick pour's cup: the full-size cup's lengths (not its wall) × QUICK_FILL^(1/3) (module doc).
 POUR_CUP_SCALE = QUICK_FILL ** (1.0 / 3.0)
 POUR_TARGETS_ML = tuple(float(v) for v in range(10, 31, 2))
+#: ``--full``: the thesis's scale (the full scene, the full-size cup).
+POUR_FULL_FILL_ML = 300.0
+POUR_FULL_TARGETS_ML = tuple(float(v) for v in range(75, 276, 20))
 
 
 def run_pour_target(work) -> dict:
@@ -153,16 +162,16 @@ def run_pour_target(work) -> dict:
     from ..generate.catalog import build_setup
     from ..generate.world import control_model
     from ..scenes.fill import fill_container
-    target, seed, horizon, step_size, approach_rate, cup_scale = work
+    target, seed, horizon, step_size, approach_rate, cup_scale, full, fill_ml = work
     torch.set_num_threads(1)
-    setup = build_setup("pour_hold", np.random.default_rng(seed), quick=True, source="cup", target="bowl",
+    setup = build_setup("pour_hold", np.random.default_rng(seed), quick=not full, source="cup", target="bowl",
                         fraction=0.9, source_scale=cup_scale)
     model = control_model(setup)
     k = setup.index("source")
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
-                                volume_ml=POUR_FILL_ML, settle_s=0.5)
+                                volume_ml=fill_ml, settle_s=0.5)
     r = run_pour(setup, model, state, target, rep.settled_ml / state.x.shape[0], horizon=horizon,
-                 step_size=step_size, approach_rate=approach_rate)
+                 step_size=step_size, approach_rate=approach_rate, max_seconds=10.0 if full else 6.0)
     return {"target_ml": target, "particles": int(state.x.shape[0]), "iterations": model.iterations,
             "cup_ml": rep.settled_ml,
             "cup_capacity_ml": setup.objects[k].model.capacity_ml,
@@ -175,32 +184,35 @@ def run_pouring(args) -> int:
     from tqdm.auto import tqdm
 
     from ..procs import map_jobs
+    fill_ml = POUR_FULL_FILL_ML if args.full else POUR_FILL_ML
+    cup_scale = (1.0 if args.full else POUR_CUP_SCALE) if args.cup_scale is None else args.cup_scale
     if args.targets is None:
-        targets = list(POUR_TARGETS_ML)
+        targets = list(POUR_FULL_TARGETS_ML if args.full else POUR_TARGETS_ML)
     else:
         try:
             targets = [float(t) for t in args.targets.split(",") if t.strip()]
         except ValueError:
             raise SystemExit(f"--targets takes ml to pour, got {args.targets!r}") from None
-        if not targets or any(not 0 < t < POUR_FILL_ML for t in targets):
-            raise SystemExit(f"--targets takes ml to pour, each in (0, {POUR_FILL_ML:g}), got {args.targets!r}")
+        if not targets or any(not 0 < t < fill_ml for t in targets):
+            raise SystemExit(f"--targets takes ml to pour, each in (0, {fill_ml:g}), got {args.targets!r}")
     from ..control import ControlError
     from ..control.pour import check_approach_rate
     try:
         check_approach_rate(args.approach_rate)
     except ControlError as e:
         raise SystemExit(f"--approach-rate: {e}") from None
-    if not 0.0 < args.cup_scale <= 1.0:
-        raise SystemExit(f"--cup-scale must be in (0, 1], got {args.cup_scale}")
-    work = [(t, args.seed, args.horizon, args.step_size, args.approach_rate, args.cup_scale) for t in targets]
+    if not 0.0 < cup_scale <= 1.0:
+        raise SystemExit(f"--cup-scale must be in (0, 1], got {cup_scale}")
+    work = [(t, args.seed, args.horizon, args.step_size, args.approach_rate, cup_scale, args.full, fill_ml)
+            for t in targets]
     t0 = time.perf_counter()
     results = list(tqdm(map_jobs(run_pour_target, work, args.jobs), total=len(work), desc="pouring", unit="pour",
                         disable=args.no_progress))
     err = np.array([r["error_ml"] for r in results])
     spilled = np.array([r["spilled_ml"] for r in results])
     rel = err / np.array(targets)
-    doc = {"kind": "control", "scene": "pouring", "quick": True, "seed": args.seed, "fill_ml": POUR_FILL_ML,
-           "cup_scale": args.cup_scale, "cup_capacity_ml": results[0]["cup_capacity_ml"] if results else None,
+    doc = {"kind": "control", "scene": "pouring", "quick": not args.full, "seed": args.seed, "fill_ml": fill_ml,
+           "cup_scale": cup_scale, "cup_capacity_ml": results[0]["cup_capacity_ml"] if results else None,
            "horizon": args.horizon, "step_size": args.step_size, "approach_rate": args.approach_rate,
            "wall_s": time.perf_counter() - t0,
            "max_abs_error_ml": float(np.abs(err).max()), "mean_abs_error_ml": float(np.abs(err).mean()),
