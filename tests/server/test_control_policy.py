@@ -189,6 +189,9 @@ def test_command_line_errors_are_clear(tmp_path):
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--targets", "70",
             "--out", str(tmp_path / "out"))
     assert r.returncode != 0 and "each in (0, 60)" in r.stderr
+    r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--full", "--targets", "310",
+            "--out", str(tmp_path / "out"))
+    assert r.returncode != 0 and "each in (0, 300)" in r.stderr          # the full-size cup holds 300 ml
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "pouring", "--targets", "10",
             "--approach-rate", "-1", "--out", str(tmp_path / "out"))
     assert r.returncode != 0 and "--approach-rate: approach_rate must be a positive number" in r.stderr
