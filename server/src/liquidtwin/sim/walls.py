@@ -4,26 +4,26 @@ The neighbour search looks for particles within h and knows nothing of objects, 
 particle under a cup's 3 mm base counts the liquid inside the cup as neighbours: pressure
 pushes through the wall, and cohesion holds a drop hanging on the outside of the cup (the
 pouring task's last drops had 9-11 neighbours inside the cup: README, "Cohesion through
-walls"). Real liquid on
-the two sides of a wall does not interact. With the cut, the pairs whose straight segment
-passes through object material are dropped from the neighbour lists of the step.
+walls"). Real liquid on the two sides of a wall does not interact. With the cut, the pairs
+whose straight segment passes through object material are dropped from the step's lists.
 
-Which pairs, cheaply. Marching every pair's segment (:func:`liquidtwin.sim.segments.segment_blocked`)
-costs several SDF samples per pair, and most pairs of a small container lie along a wall.
-So first a rule per pair, from one SDF value and normal per particle (its nearest object's):
-a wall lies between two particles only if one of them lies beyond the tangent plane of the
-other's nearest surface point. Across a flat wall of thickness t the other particle lies t
-plus its own clearance beyond that plane; where the object is convex it lies behind the
-tangent plane altogether; at a concave corner the particle on the outer, convex side sees the
-other beyond its plane. Pairs whose far particle is less than ``t/4`` beyond the plane are
-kept without marching (the quarter wall the march tolerates). It is a rule for walls, not a
-theorem for every shape: particles squeezed between two objects, or a wall of another object
-than their nearest, can slip through it. Only the few candidate pairs are marched. ``tests/server/test_walls.py`` checks the rule against marching every pair, and
-the cut against an analytic slab.
+Which pairs, cheaply. Marching every pair's segment
+(:func:`liquidtwin.sim.segments.segment_blocked`) costs several SDF samples per pair, and most
+pairs of a small container lie along a wall. So first a rule per pair, from one SDF value and
+normal per particle (its nearest object's): a wall lies between two particles only if one of
+them lies beyond the tangent plane of the other's nearest surface point. Across a flat wall
+of thickness t the other particle lies t plus its own clearance beyond that plane; where the
+object is convex it lies behind the tangent plane altogether; at a concave corner the
+particle on the outer, convex side sees the other beyond its plane. Pairs whose far particle
+is less than ``t/4`` beyond the plane are kept without marching (the quarter wall the march
+tolerates). It is a rule for walls, not a theorem for every shape: particles squeezed between
+two objects, or a wall of another object than their nearest, can slip through it. Only the
+few candidate pairs are marched. ``tests/server/test_walls.py`` checks the rule against
+marching every pair, and the cut against an analytic slab.
 
 Every neighbour list of the step is cut (the solver iterations' rebuilds and the one for
 viscosity), with the objects at their end-of-step poses, where the iterations hold them. With
-the C++ extension the rule and the march run in one pass over the pairs.
+the C++ extension the rule, the march and the compaction run in one pass over the pairs.
 
 The cut is a selection, like the neighbour search itself: it has no gradient.
 """
