@@ -758,12 +758,12 @@ bool march(const T* a, const T* b, const std::vector<Grid<T>>& gs, const std::ve
 // Candidate pairs of liquidtwin/sim/walls.py (facing_pairs), same rule: each particle within
 // `reach` (lower bound) of an object takes its nearest object's SDF s_i (value) and outward
 // normal n_i (the normalised gradient of the trilinear value, value_grad, rotated to the
-// world); pair (i, k) is a
-// candidate when x_k lies beyond i's tangent plane, (x_i - x_k).n_i > s_i - slack, or x_i
-// beyond k's, (x_i - x_k).n_k < slack - s_k. CSR pairs row_ptr (N + 1,), col (P,) -> (P,) bool.
-// With step > 0 a candidate stays True only when the march of segment_blocked (tolerance tol,
-// smallest step `step`) from the lower-indexed particle to the other finds material: the pairs a
-// wall separates (liquidtwin/sim/walls.py, cut_pairs).
+// world); pair (i, k) is a candidate when x_k lies beyond i's tangent plane,
+// (x_i - x_k).n_i > s_i - slack, or x_i beyond k's, (x_i - x_k).n_k < slack - s_k.
+// CSR pairs row_ptr (N + 1,), col (P,) -> (P,) bool. With step > 0 a candidate stays True only
+// when the march of segment_blocked (tolerance tol, smallest step `step`) from the
+// lower-indexed particle to the other finds material: the pairs a wall separates
+// (liquidtwin/sim/walls.py, cut_pairs).
 torch::Tensor facing_pairs(torch::Tensor x, torch::Tensor row_ptr, torch::Tensor col, torch::Tensor poses,
                            std::vector<torch::Tensor> grids, torch::Tensor origins, torch::Tensor cells,
                            double slack, double reach, double tol, double step) {
