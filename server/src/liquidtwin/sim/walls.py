@@ -120,8 +120,8 @@ def cut_pairs(x: torch.Tensor, row_ptr: torch.Tensor, col: torch.Tensor, objects
     slack, step = cached_for(tuple(objects), "wall cut", lambda: (slack_for(objects), default_step(objects)))
     if native:
         return fused.cut_wall_pairs(x, row_ptr, col, poses, objects, slack, reach, step, step)
-    cand = facing_pairs(x, row_ptr, col, objects, poses, slack, reach)
-    cut = pairs_through_walls(x, row_ptr, col, objects, poses, candidates=cand) if bool(cand.any()) else cand
+    cut = pairs_through_walls(x, row_ptr, col, objects, poses,
+                              candidates=facing_pairs(x, row_ptr, col, objects, poses, slack, reach))
     if not bool(cut.any()):
         return row_ptr, col
     keep = ~cut
