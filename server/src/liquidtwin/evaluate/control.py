@@ -71,6 +71,7 @@ def configure(p) -> None:
                         "which sets how fast the liquid is sent (default: control.plate.lookahead_for the liquid "
                         "on the plate: 0.25 s, or its volume / 120 ml/s when longer — quick 0.25 s, full 1.42 s; "
                         "0.25 s for both before stop 52; the step follows it unless --step-size is given); "
+                        "pouring: the same for the pull to the lip (default: control.pour.LOOKAHEAD_S); "
                         "offline runs only")
     p.add_argument("--controller", choices=("mpc", "policy"), default="mpc",
                    help="catching: the MPC or the learned policy (default: %(default)s)")
@@ -162,7 +163,7 @@ def run_pour_target(work) -> dict:
     from ..generate.catalog import build_setup
     from ..generate.world import control_model
     from ..scenes.fill import fill_container
-    target, seed, horizon, step_size, approach_rate, cup_scale, full, fill_ml = work
+    target, seed, horizon, step_size, approach_rate, cup_scale, full, fill_ml, lookahead = work
     torch.set_num_threads(1)
     setup = build_setup("pour_hold", np.random.default_rng(seed), quick=not full, source="cup", target="bowl",
                         fraction=0.9, source_scale=cup_scale)
@@ -171,7 +172,8 @@ def run_pour_target(work) -> dict:
     state, rep = fill_container(model, torch.as_tensor(setup.poses_at(0.0)), k, setup.objects[k].model,
                                 volume_ml=fill_ml, settle_s=0.5)
     r = run_pour(setup, model, state, target, rep.settled_ml / state.x.shape[0], horizon=horizon,
-                 step_size=step_size, approach_rate=approach_rate, max_seconds=10.0 if full else 6.0)
+                 step_size=step_size, approach_rate=approach_rate, lookahead_s=lookahead,
+                 max_seconds=10.0 if full else 6.0)
     return {"target_ml": target, "particles": int(state.x.shape[0]), "iterations": model.iterations,
             "cup_ml": rep.settled_ml,
             "cup_capacity_ml": setup.objects[k].model.capacity_ml,
@@ -196,6 +198,7 @@ def run_pouring(args) -> int:
         if not targets or any(not 0 < t < fill_ml for t in targets):
             raise SystemExit(f"--targets takes ml to pour, each in (0, {fill_ml:g}), got {args.targets!r}")
     from ..control import ControlError
+    from ..control.pour import LOOKAHEAD_S as POUR_LOOKAHEAD_S
     from ..control.pour import check_approach_rate
     try:
         check_approach_rate(args.approach_rate)
@@ -203,7 +206,8 @@ def run_pouring(args) -> int:
         raise SystemExit(f"--approach-rate: {e}") from None
     if not 0.0 < cup_scale <= 1.0:
         raise SystemExit(f"--cup-scale must be in (0, 1], got {cup_scale}")
-    work = [(t, args.seed, args.horizon, args.step_size, args.approach_rate, cup_scale, args.full, fill_ml)
+    lookahead = POUR_LOOKAHEAD_S if args.lookahead is None else float(args.lookahead)
+    work = [(t, args.seed, args.horizon, args.step_size, args.approach_rate, cup_scale, args.full, fill_ml, lookahead)
             for t in targets]
     t0 = time.perf_counter()
     results = list(tqdm(map_jobs(run_pour_target, work, args.jobs), total=len(work), desc="pouring", unit="pour",
@@ -214,7 +218,7 @@ def run_pouring(args) -> int:
     doc = {"kind": "control", "scene": "pouring", "quick": not args.full, "seed": args.seed, "fill_ml": fill_ml,
            "cup_scale": cup_scale, "cup_capacity_ml": results[0]["cup_capacity_ml"] if results else None,
            "horizon": args.horizon, "step_size": args.step_size, "approach_rate": args.approach_rate,
-           "wall_s": time.perf_counter() - t0,
+           "lookahead_s": lookahead, "wall_s": time.perf_counter() - t0,
            "max_abs_error_ml": float(np.abs(err).max()), "mean_abs_error_ml": float(np.abs(err).mean()),
            "mean_error_ml": float(err.mean()), "max_spilled_ml": float(spilled.max()),
            "max_abs_error_rel": float(np.abs(rel).max()), "mean_abs_error_rel": float(np.abs(rel).mean()),
@@ -230,7 +234,8 @@ def run_pouring(args) -> int:
           f"relative max {100 * np.abs(rel).max():.1f} %, mean {100 * np.abs(rel).mean():.1f} %; spilled up to "
           f"{spilled.max():.2f} ml. Thesis (75–275 g, full-size cup): max 11 g, mean 5 g, none spilled. "
           f"{doc['wall_s']:.0f} s. Results in {out}")
-    _plot_pouring(out / "pouring.png", results)
+    _plot_pouring(out / "pouring.png", results, "the full-size cup" if cup_scale == 1.0 else f"the cup × {cup_scale:.3g}",
+                  fill_ml)
     return 0
 
 
@@ -303,8 +308,9 @@ def run(args) -> int:
             raise SystemExit("--served --controller policy runs the shipped catching policy (a session's catch "
                              "task with controller 'policy'); --policy FILE is for offline runs")
     if args.lookahead is not None:
-        if args.scene != "plate" or args.served:
-            raise SystemExit("--lookahead sets the offline plate MPC's loss (a served send task uses the session's)")
+        if args.scene == "catching" or args.served:
+            raise SystemExit("--lookahead sets the offline plate and pouring MPC's loss (a served task uses the "
+                             "session's)")
         if not (np.isfinite(args.lookahead) and args.lookahead >= 0):
             raise SystemExit(f"--lookahead takes seconds >= 0, got {args.lookahead}")
     if args.scene == "pouring":
@@ -385,7 +391,7 @@ def _plot_catching(path: Path, results: list[dict], controller: str = "mpc") -> 
     _figure(path, results, "motion", CATCH_GOOD, "source motion", title, draw)
 
 
-def _plot_pouring(path: Path, results: list[dict]) -> None:
+def _plot_pouring(path: Path, results: list[dict], cup: str, fill_ml: float) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -403,7 +409,7 @@ def _plot_pouring(path: Path, results: list[dict]) -> None:
     b.set_xlabel("asked (ml)")
     b.set_ylabel("ml")
     b.legend(fontsize=8)
-    fig.suptitle("Pouring: MPC through SPNets, quick cup (60 ml)")
+    fig.suptitle(f"Pouring: MPC through SPNets, {cup} ({fill_ml:g} ml)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
