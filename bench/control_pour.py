@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from _record import emit
-from liquidtwin.control.pour import run_pour
+from liquidtwin.control.pour import LOOKAHEAD_S, run_pour
 from liquidtwin.evaluate.control import POUR_CUP_SCALE
 from liquidtwin.generate.catalog import build_setup
 from liquidtwin.generate.world import control_model
@@ -37,6 +37,9 @@ def main() -> None:
                         "predicting what still flows while the cup turns back")
     p.add_argument("--approach-rate", type=float, default=None, metavar="RAD_S",
                    help="cap on the forward tilt rate from 20 deg on, rad/s (default: none, the full 2 rad/s)")
+    p.add_argument("--lookahead", type=float, default=LOOKAHEAD_S, metavar="S",
+                   help="the pull to the lip scores each particle S seconds ahead at its velocity (default: "
+                        "%(default)s; 0: the thesis's loss)")
     p.add_argument("--max-seconds", type=float, default=6.0, help="pour length limit, s (default: %(default)s)")
     p.add_argument("--trace", type=float, default=None, metavar="S",
                    help="every S seconds print the tilt and where the liquid is (cup, bowl, neither)")
@@ -76,7 +79,7 @@ def main() -> None:
         seen.update(ever=set(), last=state)
         r = run_pour(setup, model, state, target, mlpp, step_size=a.step_size, anticipate=not a.no_anticipate,
                      progress=a.trace is None, approach_rate=a.approach_rate, max_seconds=a.max_seconds,
-                     on_step=trace)
+                     lookahead_s=a.lookahead, on_step=trace)
         last = seen["last"]
         out = ~(held(model, last, src, setup.objects[src].model)[0] | held(model, last, dst, setup.objects[dst].model)[0])
         spilled_ids = last.ids[torch.as_tensor(out)].tolist()
@@ -85,6 +88,7 @@ def main() -> None:
                "poured_ml": r.poured_ml, "left_ml": r.left_ml, "spilled_ml": r.spilled_ml,
                "spilled_after_entering_ml": after * mlpp, "spilled_never_entered_ml": (len(spilled_ids) - after) * mlpp,
                "switched_s": r.switched_s, "anticipate": not a.no_anticipate, "approach_rate": a.approach_rate,
+               "lookahead_s": a.lookahead,
                "max_angle_deg": float(np.max(r.angles_deg)),
                "update_s": r.update_s, "wall_s": time.perf_counter() - t0, "peak_mem_bytes": None}
         emit(rec, not a.no_history)
