@@ -26,8 +26,9 @@ immediate push on the liquid) then points back, the first 5 forward, and the MPC
 control (eq. 8.5: for a one-dimensional control, its sign) cancels: the full-size cup with
 300 ml hovered at 35–45° for 6 s while ~10 ml/s left it (stop 56: 75 ml switched at 8.0 s;
 275 ml missed by 8.45 ml in 10 s). With the lookahead 7 of the 10 gradients point forward (both
-measured at 38° and 42° after a 1 s and a 0.5 s hold; without the lookahead autograd matches
-central differences there to ~10 %); measured results in the README.
+measured at 38° and 42° after a 1 s and a 0.5 s hold; without the lookahead autograd agrees
+there with central differences in the sign of every component, and within ~10 % on the
+large ones); measured results in the README.
 
 ``approach_rate`` (off by default) caps the forward tilt rate from ``MIN_CHECK_TILT`` on, so
 the cup reaches the angle where liquid starts to flow slowly: at the full rate the liquid
