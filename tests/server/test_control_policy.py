@@ -212,10 +212,10 @@ def test_command_line_errors_are_clear(tmp_path):
     assert r.returncode != 0 and "--lookahead takes seconds >= 0" in r.stderr
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "catching", "--lookahead", "1",
             "--out", str(tmp_path / "out"))
-    assert r.returncode != 0 and "--lookahead sets the offline plate MPC's loss" in r.stderr
+    assert r.returncode != 0 and "--lookahead sets the offline plate and pouring MPC's loss" in r.stderr
     r = run("-m", "liquidtwin.cli", "evaluate", "control", "--scene", "plate", "--served", "30", "--lookahead", "1",
             "--out", str(tmp_path / "out"))
-    assert r.returncode != 0 and "--lookahead sets the offline plate MPC's loss" in r.stderr
+    assert r.returncode != 0 and "--lookahead sets the offline plate and pouring MPC's loss" in r.stderr
     r = run("-m", "liquidtwin.control.train_policy", "--out", str(tmp_path / "p.pt"), "--motions", "9")
     assert r.returncode == 2 and "source motions 0-7" in r.stderr
     r = run("-m", "liquidtwin.control.train_policy", "--help")
