@@ -234,8 +234,9 @@ def test_the_pull_to_the_lip_looks_ahead_at_each_particles_velocity(cup):
     assert LOOKAHEAD_S > 0 and c.lookahead_s == LOOKAHEAD_S
     v = torch.randn_like(state.x)
     moving = type(state)(state.x, v, state.ids, state.poses, state.t)
+    held_ids = set(c.ids.tolist())
     want = np.mean([np.linalg.norm(state.x[i].numpy() + LOOKAHEAD_S * v[i].numpy() - lip.numpy())
-                    for i in range(len(state.ids)) if int(state.ids[i]) in set(c.ids.tolist())])
+                    for i in range(len(state.ids)) if int(state.ids[i]) in held_ids])
     assert float(c._loss(moving, 0, torch.zeros(1, dtype=torch.float64))) == pytest.approx(want, rel=1e-5)
 
 
