@@ -190,6 +190,40 @@ def test_impact_iterations_option_solves_each_recordings_own_fall(evaluated, cap
     assert "model solver iterations impact (8 a recording)" in capsys.readouterr().out
 
 
+def test_model_options_cap_the_moves_and_cut_the_wall_pairs(evaluated, capsys):
+    """``--max-correction S``: the replaying engine's model moves a particle at most S rest
+    spacings per solver iteration; ``--cut-wall-pairs``: it drops neighbour pairs across walls
+    (each alone; without them SPNets as published). Recorded in results.json and named in the
+    table's note; nonsense is refused."""
+    from liquidtwin.evaluate.cli import max_correction_arg, with_model_options
+    from liquidtwin.evaluate.replay import engine_for
+    from liquidtwin.recordings import read_recording
+    out, data, doc = evaluated
+
+    def model(**kw):
+        return engine_for(with_model_options(read_recording(doc["cases"][0]["recording"], images=False), None, **kw),
+                          "open_loop")._scene.model
+    plain, capped, cut = model(), model(max_correction=0.5), model(cut_wall_pairs=True)
+    assert plain.max_correction is None and plain.wall_pairs
+    assert capped.max_correction == pytest.approx(0.5 * capped.spacing) and capped.wall_pairs
+    assert cut.max_correction is None and not cut.wall_pairs
+    assert capped.iterations == cut.iterations == plain.iterations
+    assert doc["max_correction"] is None and doc["cut_wall_pairs"] is False
+    rc = cli_main(["evaluate", "tracking", "--quick", "--trials", "1", "--cases", "1", "--frames", "20",
+                   "--trackers", "open_loop", "--max-correction", "0.5", "--cut-wall-pairs", "--data", str(data),
+                   "--out", str(out / "cap"), "--no-progress"])
+    assert rc in (0, None)
+    run = json.loads((out / "cap" / "results.json").read_text())
+    assert run["max_correction"] == 0.5 and run["cut_wall_pairs"] is True
+    assert "model moves capped at 0.5 spacings, model pairs cut at walls" in capsys.readouterr().out
+    for bad in ("0", "-1", "nan", "inf", "half"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            max_correction_arg(bad)
+    for bad in (0.0, -0.5, float("nan"), True):
+        with pytest.raises(SystemExit, match="--max-correction"):
+            model(max_correction=bad)
+
+
 def test_cases_option_picks_a_range_that_keeps_each_case_and_its_seed():
     # --cases A:B runs a later part of the benchmark with the very cases (and so the cached
     # recordings) of a full run; N is the first N; nonsense is refused by the parser.

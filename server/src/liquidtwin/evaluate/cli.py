@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 
 #: evaluate kind → module (relative to this package).
 KINDS = {"tracking": ".tracking", "fill": ".fill", "blockage": ".blockage", "volume": ".volume",
@@ -61,6 +62,14 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                         "deepest container 90 %% full in full ones). 'impact': per recording, enough to solve "
                         "liquid falling from its highest container rim to its lowest floor (at least the "
                         "stated count; scenes.spec.impact_iterations). A model setting, not the world's truth")
+    p.add_argument("--max-correction", type=max_correction_arg, default=None, metavar="S",
+                   help="the analysing model moves a particle at most S rest spacings per solver iteration "
+                        "(simulation.max_correction_spacings; 0.5 in the control tasks' model: no bursting drops); "
+                        "default: uncapped, SPNets as published. A model setting, not the world's truth")
+    p.add_argument("--cut-wall-pairs", action="store_true",
+                   help="the analysing model cuts the neighbour pairs a wall separates (simulation.cut_wall_pairs, "
+                        "as the control tasks' model: no cohesion through walls; ~1.35x the step time); default: "
+                        "SPNets' pairs. A model setting, not the world's truth")
 
 
 IMPACT = "impact"
@@ -77,6 +86,23 @@ def iterations_arg(text: str):
     if n < 1:
         raise argparse.ArgumentTypeError(f"takes a whole number >= 1 or '{IMPACT}', got {text!r}")
     return n
+
+
+def max_correction_arg(text: str) -> float:
+    """argparse type of ``--max-correction``: a number of rest spacings > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"takes a number of rest spacings > 0, got {text!r}")
+    return v
+
+
+def model_options_note(args) -> str:
+    """The table notes' words for the model options other than ``--iterations``."""
+    return ((f", model moves capped at {args.max_correction:g} spacings" if args.max_correction else "")
+            + (", model pairs cut at walls" if args.cut_wall_pairs else ""))
 
 
 def add_likelihood_options(p: argparse.ArgumentParser, *, batched: str = "yes", slack: float = 16.0,
@@ -125,10 +151,20 @@ def solver_iterations(rec) -> int | None:
     return int(simulation_settings(rec.spec)["iterations"])
 
 
-def with_model_options(rec, iterations: int | str | None):
+def with_model_options(rec, iterations: int | str | None, max_correction: float | None = None,
+                       cut_wall_pairs: bool = False):
     """``rec`` with its scene spec solving ``iterations`` solver iterations of the same liquid
     (``scenes.spec.solve_with``; None: unchanged; ``"impact"``: ``scenes.spec.impact_iterations``
-    of its own scene)."""
+    of its own scene), each iteration's move capped at ``max_correction`` rest spacings (None:
+    as the spec says) and, with ``cut_wall_pairs``, no neighbour pairs through walls."""
+    if max_correction is not None and (isinstance(max_correction, bool) or not isinstance(max_correction, (int, float))
+                                       or not math.isfinite(max_correction) or max_correction <= 0):
+        raise SystemExit(f"--max-correction must be a number of rest spacings > 0, got {max_correction!r}")
+    if rec.spec is not None:
+        if max_correction is not None:
+            rec.spec.simulation.max_correction_spacings = float(max_correction)
+        if cut_wall_pairs:
+            rec.spec.simulation.cut_wall_pairs = True
     if iterations is not None:
         if iterations != IMPACT and (isinstance(iterations, (bool, str)) or int(iterations) != iterations
                                      or iterations < 1):

@@ -24,7 +24,8 @@ import numpy as np
 from ..inference.likelihood import FILL_BLUR_PX, FILL_RADIUS_SCALE
 from .benchmark import ensure
 from .cli import (CASES_HELP, add_common, add_likelihood_options, add_model_options, case_range,
-                  likelihood_options, save_results, selected_cases, solver_iterations, with_model_options)
+                  likelihood_options, model_options_note, save_results, selected_cases, solver_iterations,
+                  with_model_options)
 
 HELP = "initial-fill inference (empty/30/60/90 %) on the pouring benchmark (thesis Fig. 7.6)"
 FILLS = (0.0, 0.3, 0.6, 0.9)
@@ -66,7 +67,8 @@ def run(args) -> int:
     names = [fill_name(f) for f in FILLS]
     results = []
     for case, path in tqdm(list(zip(case_list, paths)), desc="infer", unit="rec", disable=args.no_progress):
-        rec = with_model_options(read_recording(path, images=False), args.iterations)
+        rec = with_model_options(read_recording(path, images=False), args.iterations, args.max_correction,
+                                 args.cut_wall_pairs)
         truth = fill_name(case.fraction)                          # scoring only
         row = {"case": case.as_dict(), "recording": str(path), "truth": truth, "modes": {},
                "iterations": solver_iterations(rec)}
@@ -86,6 +88,7 @@ def run(args) -> int:
     doc = {"kind": "fill", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed, "delta": delta,
            "slack_px": slack, "blur_px": blur, "radius_scale": args.radius_scale,
            "iterations": args.iterations,
+           "max_correction": args.max_correction, "cut_wall_pairs": args.cut_wall_pairs,
            "scale": scale, "frames": args.frames, "trackers": list(args.trackers), "hypotheses": names,
            "summary": summary, "table_text": text, "cases": results}
     best = max(summary, key=lambda m: summary[m]["mean_p_truth"])
@@ -116,7 +119,8 @@ def format_table(results, modes, names, summary, quick, delta, slack, blur, args
                  f"delta = {delta}, slack {slack:g} px, blur {blur:g} px at 640x480, "
                  f"particles drawn at {args.radius_scale:g} x their radius"
                  + (f", first {args.frames} pose samples" if args.frames else "")
-                 + (f", model solver iterations {args.iterations}" if args.iterations else ""))
+                 + (f", model solver iterations {args.iterations}" if args.iterations else "")
+                 + model_options_note(args))
     return "\n".join(lines)
 
 

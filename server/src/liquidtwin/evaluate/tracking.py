@@ -34,8 +34,8 @@ import numpy as np
 
 from ..procs import map_jobs
 from .benchmark import ensure
-from .cli import (CASES_HELP, IMPACT, add_common, add_model_options, case_range, save_results, selected_cases,
-                  solver_iterations, with_model_options)
+from .cli import (CASES_HELP, IMPACT, add_common, add_model_options, case_range, model_options_note, save_results,
+                  selected_cases, solver_iterations, with_model_options)
 from .replay import MODES, engine_for, replay
 
 HELP = "closed-loop tracking IOU per tracker on the pouring benchmark (thesis Fig. 7.5)"
@@ -191,17 +191,18 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
 
 def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: bool = True,
                   iterations: int | None = None, masks=("recorded",), detector: Path | None = None,
-                  pose_filter: str | None = None) -> dict:
+                  pose_filter: str | None = None, model: tuple = (None, False)) -> dict:
     """{column (:func:`columns_for`): {"t_s", "iou", "observed_px"} or None (tracker not
     available)}; ``iterations``: the model's solver iterations (None: the recording's);
     ``masks``: mask sources; ``detector``: model file for detected masks (None: shipped);
-    ``pose_filter``: a --pose-filter setting for every tracker's session (:func:`pose_filter_for`).
+    ``pose_filter``: a --pose-filter setting for every tracker's session (:func:`pose_filter_for`);
+    ``model``: (max_correction, cut_wall_pairs) for ``cli.with_model_options``.
     With detected masks, also "detector": the detector's masks against the recorded ones."""
     import dataclasses
 
     from ..recordings import read_recording
     from ..session.errors import INFEASIBLE, EngineError
-    rec = with_model_options(read_recording(path, images="detected" in masks), iterations)
+    rec = with_model_options(read_recording(path, images="detected" in masks), iterations, *model)
     camera = next(iter(rec.masks))
     stamps, recorded = rec.masks[camera]
     series, notes, extra = {}, {}, {}
@@ -273,8 +274,8 @@ def run(args) -> int:
     case_list = selected_cases(args, rgb="detected" in masks)
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
-    work = [(str(p), tuple(trackers), args.frames, args.iterations, tuple(masks), detector, args.pose_filter)
-            for p in paths]
+    work = [(str(p), tuple(trackers), args.frames, args.iterations, tuple(masks), detector, args.pose_filter,
+             (args.max_correction, args.cut_wall_pairs)) for p in paths]
     bar = tqdm(total=len(work), desc="replay", unit="case", disable=args.no_progress)
     for case, path, r in zip(case_list, paths, map_jobs(_evaluate_one, work, args.jobs)):
         bar.update()
@@ -288,6 +289,7 @@ def run(args) -> int:
             + (f", model solver iterations {args.iterations}" if args.iterations else "")
             + (f" ({_span([r['iterations'] for r in results])} a recording)" if args.iterations == IMPACT else "")
             + (f", pose filter {args.pose_filter}" if args.pose_filter else "")
+            + model_options_note(args)
             + "; ceiling = the true particles drawn as the model (scoring only)"
             + ("; TRACKER det = corrected with the RGB detector's masks, scored against the recorded masks"
                if "detected" in masks else ""))
@@ -302,6 +304,7 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     doc = {"kind": "tracking", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
            "frames": args.frames, "iterations": args.iterations, "pose_filter": args.pose_filter,
+           "max_correction": args.max_correction, "cut_wall_pairs": args.cut_wall_pairs,
            "min_px": args.min_px, "trackers": trackers,
            "masks": masks, "detector": detector, "columns": columns,
            "table": tab, "table_text": text, "cases": results}
@@ -325,9 +328,9 @@ def _span(counts) -> str:
 def _evaluate_one(job) -> dict:
     import torch
     torch.set_num_threads(1)
-    path, trackers, frames, iterations, masks, detector, pose_filter = job
+    path, trackers, frames, iterations, masks, detector, pose_filter, model = job
     return evaluate_case(Path(path), trackers, frames=frames, iterations=iterations, masks=masks,
-                         detector=None if detector is None else Path(detector), pose_filter=pose_filter)
+                         detector=None if detector is None else Path(detector), pose_filter=pose_filter, model=model)
 
 
 def series_mean(s: dict | None, min_px: int) -> float | None:
