@@ -97,3 +97,21 @@ def test_cli_runs_one_quick_case(data, tmp_path, capsys):
     assert head["unit"] == "ml" and head["value"] == (min(measured) if measured else None)
     for png in ("rmse.png", "volume_time.png"):
         assert (out / png).stat().st_size > 5000
+
+
+def test_cli_model_options_reach_the_trackers_model_and_not_the_mask_model(data, tmp_path, capsys):
+    """``--max-correction``/``--iterations`` are settings of the trackers' model: recorded and
+    named in the note; the mask model's volumes (no simulation) are the same either way."""
+    from liquidtwin.cli import main
+    d, _ = data
+    docs = []
+    for extra in ([], ["--max-correction", "0.5", "--iterations", "6"]):
+        out = tmp_path / ("capped" if extra else "plain")
+        code = main(["evaluate", "volume", "--quick", "--cases", "1", "--trials", "1", "--trackers", "open_loop",
+                     "--frames", "30", "--data", str(d), "--out", str(out), "--no-progress", *extra])
+        assert code in (0, None)
+        docs.append(json.loads((out / "results.json").read_text()))
+    assert "model solver iterations 6, model moves capped at 0.5 spacings" in capsys.readouterr().out
+    assert (docs[0]["max_correction"], docs[0]["iterations"]) == (None, None)
+    assert (docs[1]["max_correction"], docs[1]["iterations"]) == (0.5, 6)
+    assert docs[0]["cases"][0]["mask"] == docs[1]["cases"][0]["mask"]

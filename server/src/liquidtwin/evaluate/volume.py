@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from .benchmark import ensure
-from .cli import CASES_HELP, add_common, case_range, save_results, selected_cases
+from .cli import (CASES_HELP, add_common, add_model_options, case_range, model_options_note, save_results,
+                  selected_cases, with_model_options)
 from .replay import MODES, engine_for, replay
 
 HELP = "volume estimates (particle count per tracker, model-based from masks) vs truth, RMSE ml (SPEC §5)"
@@ -47,6 +48,7 @@ def configure(p) -> None:
     p.add_argument("--cases", type=case_range, default=None, metavar="N|A:B", help=CASES_HELP)
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="only the first N pose samples of each recording (default: all)")
+    add_model_options(p)
 
 
 def true_volumes(path: Path, engine, stamps_ns) -> dict:
@@ -81,12 +83,14 @@ def pour_from(rec, stamps) -> int:
     return next((i for i, s in enumerate(stamps) if _tilt(rec.poses_at(int(s))[src]) > POUR_TILT_RAD), len(stamps))
 
 
-def evaluate_case(path: Path, trackers, *, frames: int | None = None) -> dict:
+def evaluate_case(path: Path, trackers, *, frames: int | None = None, iterations=None,
+                  max_correction: float | None = None, cut_wall_pairs: bool = False) -> dict:
     """{"t_s", "truth", "pour_from", "particles": {tracker: {container: [...]}}, "mask": {...},
-    "mask_ms"} for one recording."""
+    "mask_ms"} for one recording; ``iterations``, ``max_correction``, ``cut_wall_pairs``: the
+    trackers' model (``cli.with_model_options``; the mask model has none)."""
     from ..recordings import read_recording
     from ..session.errors import INFEASIBLE, EngineError
-    rec = read_recording(path, images=False)
+    rec = with_model_options(read_recording(path, images=False), iterations, max_correction, cut_wall_pairs)
     series, mask, stamps, mask_ms, t_s = {}, None, [], [], []
     engine = None
     for t in trackers:
@@ -179,19 +183,23 @@ def run(args) -> int:
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
     for case, path in tqdm(list(zip(case_list, paths)), desc="replay", unit="case", disable=args.no_progress):
-        r = evaluate_case(path, trackers, frames=args.frames)
+        r = evaluate_case(path, trackers, frames=args.frames, iterations=args.iterations,
+                          max_correction=args.max_correction, cut_wall_pairs=args.cut_wall_pairs)
         r = {"case": case.as_dict(), "recording": str(path), **r}
         r["rmse"] = case_rmse(r)
         results.append(r)
     tab = table(results)
     note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
-            f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else ""))
+            f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else "")
+            + (f", model solver iterations {args.iterations}" if args.iterations else "") + model_options_note(args))
     text = format_table(tab, note)
     print(text)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = {"kind": "volume", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
-           "frames": args.frames, "trackers": trackers, "pour_tilt_rad": POUR_TILT_RAD, "columns": list(COLUMNS),
+           "frames": args.frames, "iterations": args.iterations, "max_correction": args.max_correction,
+           "cut_wall_pairs": args.cut_wall_pairs,
+           "trackers": trackers, "pour_tilt_rad": POUR_TILT_RAD, "columns": list(COLUMNS),
            "table": tab, "table_text": text, "cases": results}
     col = next((c for c in COLUMNS if c.startswith("target") and c.endswith("pour")), None)
     rows = {k: v[col] for k, v in tab.items() if col and v.get(col) is not None}
