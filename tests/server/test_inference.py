@@ -282,13 +282,17 @@ def test_bad_requests_fail_clearly(pour):
     torch.set_num_threads(1)
 
 
-def test_evaluate_rejects_a_bad_likelihood_before_generating(tmp_path):
+def test_evaluate_rejects_a_bad_likelihood_before_generating(tmp_path, capsys):
     from liquidtwin.cli import main
     for kind, opt, val, says in (("fill", "--slack", "-1", "--delta/--slack"), ("blockage", "--delta", "0.4", "--delta/--slack"),
                                  ("fill", "--slack", "nan", "--delta/--slack"), ("blockage", "--partial", "1", "--partial"),
                                  ("fill", "--radius-scale", "-0.5", "--radius-scale")):
         with pytest.raises(SystemExit, match=says):
             main(["evaluate", kind, "--quick", opt, val, "--data", str(tmp_path / "d"), "--out", str(tmp_path / "o")])
+    with pytest.raises(SystemExit):                       # the model's cap is checked by the parser
+        main(["evaluate", "fill", "--quick", "--max-correction", "0", "--data", str(tmp_path / "d"),
+              "--out", str(tmp_path / "o")])
+    assert "--max-correction: takes a number of rest spacings > 0" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()                  # nothing was generated
 
 
