@@ -99,9 +99,11 @@ def test_cli_runs_one_quick_case(data, tmp_path, capsys):
         assert (out / png).stat().st_size > 5000
 
 
-def test_cli_model_options_reach_the_trackers_model_and_not_the_mask_model(data, tmp_path, capsys):
+def test_cli_model_options_reach_the_trackers_model(data, tmp_path, capsys):
     """``--max-correction``/``--iterations`` are settings of the trackers' model: recorded and
-    named in the note; the mask model's volumes (no simulation) are the same either way."""
+    named in the note, and the model runs them — the session settles its initial fill in that
+    model, so the particle count reads another volume from the first frame (23.03 against
+    23.12 ml here, measured)."""
     from liquidtwin.cli import main
     d, _ = data
     docs = []
@@ -114,4 +116,5 @@ def test_cli_model_options_reach_the_trackers_model_and_not_the_mask_model(data,
     assert "model solver iterations 6, model moves capped at 0.5 spacings" in capsys.readouterr().out
     assert (docs[0]["max_correction"], docs[0]["iterations"]) == (None, None)
     assert (docs[1]["max_correction"], docs[1]["iterations"]) == (0.5, 6)
-    assert docs[0]["cases"][0]["mask"] == docs[1]["cases"][0]["mask"]
+    plain, capped = (d["cases"][0]["particles"]["open_loop"]["source"] for d in docs)
+    assert len(plain) == len(capped) > 5 and plain[0] != capped[0]
