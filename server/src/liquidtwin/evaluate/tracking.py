@@ -191,18 +191,20 @@ def ceiling_series(rec, path: Path, engine, camera: str, frames: int | None = No
 
 def evaluate_case(path: Path, trackers, *, frames: int | None = None, ceiling: bool = True,
                   iterations: int | None = None, masks=("recorded",), detector: Path | None = None,
-                  pose_filter: str | None = None, model: tuple = (None, False)) -> dict:
+                  pose_filter: str | None = None, max_correction: float | None = None,
+                  cut_wall_pairs: bool = False) -> dict:
     """{column (:func:`columns_for`): {"t_s", "iou", "observed_px"} or None (tracker not
     available)}; ``iterations``: the model's solver iterations (None: the recording's);
     ``masks``: mask sources; ``detector``: model file for detected masks (None: shipped);
     ``pose_filter``: a --pose-filter setting for every tracker's session (:func:`pose_filter_for`);
-    ``model``: (max_correction, cut_wall_pairs) for ``cli.with_model_options``.
+    ``max_correction``, ``cut_wall_pairs``: the model's cap and wall cut (``cli.with_model_options``).
     With detected masks, also "detector": the detector's masks against the recorded ones."""
     import dataclasses
 
     from ..recordings import read_recording
     from ..session.errors import INFEASIBLE, EngineError
-    rec = with_model_options(read_recording(path, images="detected" in masks), iterations, *model)
+    rec = with_model_options(read_recording(path, images="detected" in masks), iterations, max_correction,
+                             cut_wall_pairs)
     camera = next(iter(rec.masks))
     stamps, recorded = rec.masks[camera]
     series, notes, extra = {}, {}, {}
@@ -275,7 +277,7 @@ def run(args) -> int:
     paths = ensure(case_list, args.data, jobs=args.jobs, progress=not args.no_progress)
     results = []
     work = [(str(p), tuple(trackers), args.frames, args.iterations, tuple(masks), detector, args.pose_filter,
-             (args.max_correction, args.cut_wall_pairs)) for p in paths]
+             args.max_correction, args.cut_wall_pairs) for p in paths]
     bar = tqdm(total=len(work), desc="replay", unit="case", disable=args.no_progress)
     for case, path, r in zip(case_list, paths, map_jobs(_evaluate_one, work, args.jobs)):
         bar.update()
@@ -328,9 +330,10 @@ def _span(counts) -> str:
 def _evaluate_one(job) -> dict:
     import torch
     torch.set_num_threads(1)
-    path, trackers, frames, iterations, masks, detector, pose_filter, model = job
+    path, trackers, frames, iterations, masks, detector, pose_filter, max_correction, cut_wall_pairs = job
     return evaluate_case(Path(path), trackers, frames=frames, iterations=iterations, masks=masks,
-                         detector=None if detector is None else Path(detector), pose_filter=pose_filter, model=model)
+                         detector=None if detector is None else Path(detector), pose_filter=pose_filter,
+                         max_correction=max_correction, cut_wall_pairs=cut_wall_pairs)
 
 
 def series_mean(s: dict | None, min_px: int) -> float | None:
