@@ -99,9 +99,11 @@ def max_correction_arg(text: str) -> float:
     return v
 
 
-def model_options_note(args) -> str:
-    """The table notes' words for the model options other than ``--iterations``."""
-    return ((f", model moves capped at {args.max_correction:g} spacings" if args.max_correction else "")
+def model_options_note(args, iterations_detail: str = "") -> str:
+    """The table notes' words for :func:`add_model_options` (``iterations_detail`` follows the
+    iterations, e.g. the counts ``impact`` gave)."""
+    return ((f", model solver iterations {args.iterations}{iterations_detail}" if args.iterations else "")
+            + (f", model moves capped at {args.max_correction:g} spacings" if args.max_correction else "")
             + (", model pairs cut at walls" if args.cut_wall_pairs else ""))
 
 
@@ -157,12 +159,14 @@ def with_model_options(rec, iterations: int | str | None, max_correction: float 
     (``scenes.spec.solve_with``; None: unchanged; ``"impact"``: ``scenes.spec.impact_iterations``
     of its own scene), each iteration's move capped at ``max_correction`` rest spacings (None:
     as the spec says) and, with ``cut_wall_pairs``, no neighbour pairs through walls."""
-    if max_correction is not None and (isinstance(max_correction, bool) or not isinstance(max_correction, (int, float))
-                                       or not math.isfinite(max_correction) or max_correction <= 0):
-        raise SystemExit(f"--max-correction must be a number of rest spacings > 0, got {max_correction!r}")
+    if max_correction is not None:
+        try:
+            max_correction = max_correction_arg(str(max_correction))     # True, 0, NaN: refused
+        except argparse.ArgumentTypeError as e:
+            raise SystemExit(f"--max-correction {e}") from None
     if rec.spec is not None:
         if max_correction is not None:
-            rec.spec.simulation.max_correction_spacings = float(max_correction)
+            rec.spec.simulation.max_correction_spacings = max_correction
         if cut_wall_pairs:
             rec.spec.simulation.cut_wall_pairs = True
     if iterations is not None:

@@ -119,7 +119,6 @@ def format_table(results, modes, names, summary, quick, delta, slack, blur, args
                  f"delta = {delta}, slack {slack:g} px, blur {blur:g} px at 640x480, "
                  f"particles drawn at {args.radius_scale:g} x their radius"
                  + (f", first {args.frames} pose samples" if args.frames else "")
-                 + (f", model solver iterations {args.iterations}" if args.iterations else "")
                  + model_options_note(args))
     return "\n".join(lines)
 

@@ -288,10 +288,9 @@ def run(args) -> int:
     tab = table(results, columns, args.min_px)
     note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
             f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else "")
-            + (f", model solver iterations {args.iterations}" if args.iterations else "")
-            + (f" ({_span([r['iterations'] for r in results])} a recording)" if args.iterations == IMPACT else "")
+            + model_options_note(args, f" ({_span([r['iterations'] for r in results])} a recording)"
+                                 if args.iterations == IMPACT else "")
             + (f", pose filter {args.pose_filter}" if args.pose_filter else "")
-            + model_options_note(args)
             + "; ceiling = the true particles drawn as the model (scoring only)"
             + ("; TRACKER det = corrected with the RGB detector's masks, scored against the recorded masks"
                if "detected" in masks else ""))

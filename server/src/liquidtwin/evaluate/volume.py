@@ -191,7 +191,7 @@ def run(args) -> int:
     tab = table(results)
     note = (f"{'quick' if args.quick else 'full'} benchmark, {len(case_list)} cases, trials {args.trials}, "
             f"base seed {args.seed}" + (f", first {args.frames} pose samples" if args.frames else "")
-            + (f", model solver iterations {args.iterations}" if args.iterations else "") + model_options_note(args))
+            + model_options_note(args))
     text = format_table(tab, note)
     print(text)
     out = Path(args.out)
