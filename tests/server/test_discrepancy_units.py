@@ -103,6 +103,27 @@ def test_residual_metrics_against_hand_values():
     assert pixel_iou(a, _blob(c0=26)[None])[0] == pytest.approx(72 / 216)
 
 
+def test_coarse_cells_and_iou_equal_a_pixel_by_pixel_count():
+    """Both paths of ``coarse`` (byte counts for whole 4×4 cells, float pooling when the image
+    has a partial cell) against counting each cell's pixels in a loop; a partial cell holds
+    liquid at ≥ 2 × its share of 16 pixels. ``pixel_iou`` against per-frame set counts."""
+    rng = np.random.default_rng(3)
+    for shape in [(3, 48, 64), (2, 30, 41)]:
+        for p in (0.02, 0.1, 0.4):
+            m = rng.random(shape) < p
+            f, h, w = shape
+            want = np.zeros((f, -(-h // CELL), -(-w // CELL)), bool)
+            for k in range(f):
+                for i in range(want.shape[1]):
+                    for j in range(want.shape[2]):
+                        cell = m[k, CELL * i:CELL * (i + 1), CELL * j:CELL * (j + 1)]
+                        want[k, i, j] = cell.sum() * CELL * CELL / cell.size >= 2 - 1e-6
+            assert np.array_equal(coarse(m), want)
+            o = rng.random(shape) < p
+            iou = [(m[k] & o[k]).sum() / (m[k] | o[k]).sum() for k in range(f)]
+            assert np.allclose(pixel_iou(m, o), iou, rtol=0, atol=1e-15)
+
+
 def test_interval_covers_the_mean_and_shrinks_with_data():
     rng = np.random.default_rng(1)
     v = rng.normal(1.0, 0.5, 400)

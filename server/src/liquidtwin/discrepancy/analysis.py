@@ -162,12 +162,20 @@ class _Evaluator:
         self._fresh: dict = {}
         self.evaluations = 0
         self.frames = [None] * len(sims)
+        self._obs = None
 
     def restrict(self, frames: list) -> None:
         """Draw only these mask frames (index arrays per episode) from now on."""
         self.frames = list(frames)
+        self._obs = None
         self._cells.clear()
         self._iou.clear()
+
+    def observed(self) -> list:
+        """Every episode's observed masks at the drawn frames (gathered once, not per evaluation)."""
+        if self._obs is None:
+            self._obs = [s.ep.masks if f is None else s.ep.masks[f] for s, f in zip(self.sims, self.frames)]
+        return self._obs
 
     key = staticmethod(_key)
 
@@ -217,8 +225,7 @@ class _Evaluator:
             trajs = self._trajectories(ext)
             masks = [s.render(t, f, ext=ext) for s, t, f in zip(self.sims, trajs, self.frames)]
             self._cells[k] = [coarse(m) for m in masks]
-            self._iou[k] = [pixel_iou(m, s.ep.masks if f is None else s.ep.masks[f])
-                            for m, s, f in zip(masks, self.sims, self.frames)]
+            self._iou[k] = [pixel_iou(m, o) for m, o in zip(masks, self.observed())]
             self._fresh[k] = (self._cells[k], self._iou[k])
             self.evaluations += 1
             if self.bar is not None:

@@ -32,7 +32,16 @@ MIN_CELLS = 5
 
 
 def coarse(masks: np.ndarray) -> np.ndarray:
-    """(F, H, W) bool → (F, H/4, W/4) bool cells holding ≥ 2 liquid pixels."""
+    """(F, H, W) bool → (F, H/4, W/4) bool cells holding ≥ 2 liquid pixels (a partial cell at
+    the right or bottom edge: ≥ 2 × its share of 16 pixels, as ``avg_pool2d(ceil_mode=True)``
+    averages it). Whole cells are counted in bytes (a full-size pour's 241 masks: 4× faster
+    than the float pooling, the same cells)."""
+    masks = np.asarray(masks)
+    f, h, w = masks.shape
+    if masks.dtype == np.bool_ and h % CELL == 0 and w % CELL == 0:
+        u = np.ascontiguousarray(masks).view(np.uint8).reshape(f, h // CELL, CELL, w)
+        rows = u.sum(2, dtype=np.uint8)                       # ≤ 4 per column of a cell
+        return rows.reshape(f, h // CELL, w // CELL, CELL).sum(3, dtype=np.uint8) >= CELL_MIN
     t = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32))[:, None]
     pooled = F.avg_pool2d(t, CELL, CELL, ceil_mode=True)[:, 0] * (CELL * CELL)
     return (pooled >= CELL_MIN - 1e-6).numpy()
@@ -62,8 +71,8 @@ def cell_metrics(cm: np.ndarray, co: np.ndarray) -> dict:
 
 def pixel_iou(model: np.ndarray, obs: np.ndarray) -> np.ndarray:
     """(F,) IOU of (F, H, W) bool masks; 1 where both are empty."""
-    inter = (model & obs).sum((1, 2))
-    union = (model | obs).sum((1, 2))
+    inter = np.array([np.count_nonzero(m & o) for m, o in zip(model, obs)], np.int64)
+    union = np.array([np.count_nonzero(m | o) for m, o in zip(model, obs)], np.int64)
     return np.where(union > 0, inter / np.maximum(union, 1), 1.0)
 
 
