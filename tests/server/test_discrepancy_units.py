@@ -134,6 +134,27 @@ def test_interval_covers_the_mean_and_shrinks_with_data():
     assert hi2 - lo2 > hi - lo
 
 
+def test_stratified_interval_keeps_the_moving_share_and_covers_the_mean():
+    """A gain only while the source turns: 3 of 10 held-out blocks move (gain ~0.5), 7 rest
+    (gain ~0). Resampled as one set, draws with no or one moving block pull the lower bound to
+    ~0; resampled per stratum every draw holds 3 moving blocks, so the interval is the spread
+    within the strata. Against a direct count: with the values constant within each stratum the
+    stratified interval is the mean exactly; a stratum of one block falls back to one set."""
+    rng = np.random.default_rng(2)
+    moving = np.repeat(np.arange(10) < 3, 6)
+    blocks = np.repeat(np.arange(10), 6)
+    v = np.where(moving, 0.5, 0.0) + rng.normal(0.0, 0.02, 60)
+    lo1, hi1 = interval(v, blocks, np.random.default_rng(0), 4000)
+    lo2, hi2 = interval(v, blocks, np.random.default_rng(0), 4000, moving)
+    assert lo1 < 0.05 and lo2 > 0.12                  # (7/10)^10 of one-set draws hold no moving block
+    assert lo2 < v.mean() < hi2 and hi2 - lo2 < 0.5 * (hi1 - lo1)
+    flat = np.where(moving, 0.5, 0.0)
+    lo, hi = interval(flat, blocks, np.random.default_rng(0), 500, moving)
+    assert lo == pytest.approx(flat.mean(), abs=1e-12) and hi == pytest.approx(flat.mean(), abs=1e-12)
+    one = np.repeat(np.arange(10) < 1, 6)               # a stratum of one block: one set
+    assert interval(v, blocks, np.random.default_rng(0), 500, one) == interval(v, blocks, np.random.default_rng(0), 500)
+
+
 def test_line_search_finds_a_minimum_between_grid_points():
     x, fx, trace = _line(lambda v: (math.log(v) - math.log(2.0)) ** 2, (0.5, 1.5, 4.0, 9.0), True)
     assert abs(x - 2.0) < 0.5 and fx < (math.log(1.5) - math.log(2.0)) ** 2 and len(trace) <= 8

@@ -40,7 +40,7 @@ from tqdm.auto import tqdm
 from ..sensors.masks import MaskNoise, corrupt_mask
 from .candidates import COARSE, FINE, LIBRARY, fit_candidate, main_value, tied_range
 from .episode import POSE_SMOOTHING_S, load_episode
-from .evidence import evidence
+from .evidence import REST_RAD_S, tilt_and_speed, evidence
 from .corrections import correction_evidence, fit_learned, pooled, tracker_corrections
 from .model import CANDIDATES, Extension, learned_params
 from .parallel import Workers
@@ -101,7 +101,10 @@ class Options:
     realisations redraw the tracker's pose error and the calibrated λ (``_null_cells``; False:
     the base model's own chaos and mask noise only, the null before stop 34); level_runs:
     realisations the residual's level is compared with (:data:`LEVEL_RUNS`; the first
-    ``null_runs`` of them are the ones the candidates are fitted on; none when null_runs is 0)."""
+    ``null_runs`` of them are the ones the candidates are fitted on; none when null_runs is 0);
+    stratify: the intervals of a time-block split resample the held-out blocks where the source
+    turns and those where it rests separately (:func:`interval`; False: all blocks as one set,
+    the rule before stop 59)."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -116,6 +119,7 @@ class Options:
     pose_smoothing_s: float = POSE_SMOOTHING_S
     null_vary: bool = True
     level_runs: int = LEVEL_RUNS
+    stratify: bool = True
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -144,6 +148,7 @@ class _Data:
     fit: list
     held: list
     blocks: list
+    strata: list | None = None
 
 
 def _key(ext: Extension) -> tuple:
@@ -251,8 +256,11 @@ class _Evaluator:
         return float(np.concatenate([l[f] for l, f in zip(ls, data.fit)]).mean())
 
 
-def _split(eps, block_s: float, frames: list) -> tuple[_Data, dict]:
-    """Fit / held-out split over the informative ``frames`` (index arrays per episode)."""
+def _split(eps, block_s: float, frames: list, turning=None) -> tuple[_Data, dict]:
+    """Fit / held-out split over the informative ``frames`` (index arrays per episode).
+    ``turning``: (F,) source angular speed at the one episode's frames, rad/s; with it a
+    time-block split labels each block moving (mean speed over its frames > ``REST_RAD_S``)
+    or resting (``_Data.strata``, per frame), the strata of :func:`interval`."""
     cells = [coarse(e.masks[f]) for e, f in zip(eps, frames)]
     fit, held, blocks = [], [], []
     if len(eps) >= 2:
@@ -270,13 +278,20 @@ def _split(eps, block_s: float, frames: list) -> tuple[_Data, dict]:
         desc = {"by": "time_block", "block_s": block_s,
                 "fit_blocks_s": [[float(k * block_s), float((k + 1) * block_s)] for k in sorted(set(b[b % 2 == 0]))],
                 "held_out_blocks_s": [[float(k * block_s), float((k + 1) * block_s)] for k in sorted(set(b[b % 2 == 1]))]}
+    strata = None
+    if len(eps) == 1 and turning is not None:
+        speed = np.asarray(turning, float)[frames[0]]
+        moving = {k: bool(speed[b == k].mean() > REST_RAD_S) for k in np.unique(b)}
+        strata = [np.array([moving[k] for k in b], bool)]
+        held_ids = np.unique(b[held[0]])
+        desc["held_out_blocks_moving"] = int(sum(moving[k] for k in held_ids))
     desc["fit_frames"] = int(sum(f.sum() for f in fit))
     desc["held_out_frames"] = int(sum(h.sum() for h in held))
     if desc["held_out_frames"] == 0 or desc["fit_frames"] == 0:
         raise ValueError("too little liquid is seen to split the data into fitting and held-out parts "
                          f"({desc['fit_frames']} and {desc['held_out_frames']} frames with liquid, block {block_s} s); "
                          "give a shorter --block or more recordings")
-    return _Data(cells, fit, held, blocks), desc
+    return _Data(cells, fit, held, blocks, strata), desc
 
 
 def _held(values: list, data: _Data) -> tuple[np.ndarray, np.ndarray]:
@@ -285,13 +300,35 @@ def _held(values: list, data: _Data) -> tuple[np.ndarray, np.ndarray]:
     return v, b
 
 
-def interval(values: np.ndarray, blocks: np.ndarray, rng, n: int) -> list:
-    """95 % interval of the mean of ``values`` by resampling whole ``blocks``."""
+def _held_strata(data: _Data) -> np.ndarray | None:
+    """The held-out frames' strata (``_Data.strata``), aligned with :func:`_held`'s values."""
+    if data.strata is None:
+        return None
+    return np.concatenate([s[h] for s, h in zip(data.strata, data.held)])
+
+
+def interval(values: np.ndarray, blocks: np.ndarray, rng, n: int, strata: np.ndarray | None = None) -> list:
+    """95 % interval of the mean of ``values`` by resampling whole ``blocks``.
+
+    ``strata`` (per value, constant within a block): resample each stratum's blocks apart, as
+    many as it has, so every resample holds as many moving and resting blocks as the recording
+    (the stratified bootstrap). The share of blocks in which the source turns is set by the
+    trajectory, not drawn by chance; where a candidate changes the liquid only while it moves
+    (a time offset, the pour's flow), resampling all blocks as one set also draws how many of
+    those blocks there are, and its interval reaches zero on a clear gain (README, "Discrepancy
+    discovery": the stratified intervals). With a stratum of a single block, or one stratum, it
+    falls back to one set."""
     ids = np.unique(blocks)
     groups = [values[blocks == i] for i in ids]
+    sets = [np.arange(len(groups))]
+    if strata is not None:
+        label = np.array([bool(strata[blocks == i][0]) for i in ids])
+        split = [np.nonzero(label == v)[0] for v in (False, True)]
+        if all(len(g) >= 2 for g in split):
+            sets = split
     means = []
     for _ in range(n):
-        pick = rng.integers(len(groups), size=len(groups))
+        pick = np.concatenate([g[rng.integers(len(g), size=len(g))] for g in sets])
         means.append(np.concatenate([groups[k] for k in pick]).mean())
     lo, hi = np.percentile(means, [2.5, 97.5])
     return [float(lo), float(hi)]
@@ -368,7 +405,8 @@ def prepare(sources: list, opt: Options, bar=None) -> tuple:
     # Frames where neither the recording nor the stated model shows liquid say nothing.
     frames = [np.nonzero((coarse(e.masks).sum((1, 2)) >= MIN_CELLS) | (c.sum((1, 2)) >= MIN_CELLS))[0]
               for e, c in zip(eps, ev.cells(Extension()))]
-    data, split = _split(eps, opt.block_s, frames)
+    turning = tilt_and_speed(eps[0], sims[0].source_index)[1] if opt.stratify and len(eps) == 1 else None
+    data, split = _split(eps, opt.block_s, frames, turning)
     ev.restrict(frames)
     pool = Workers(ev, eps, frames, opt.jobs, opt.extra_iterations) if opt.jobs > 1 else None
     return eps, sims, ev, frames, data, split, pool
@@ -457,6 +495,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     realisations = (pending() if pending is not None else
                     [_null_cells(sims, frames, base, run, opt.seed, opt.null_vary) for run in range(runs)])
     held_base, blocks = _held(base_loss, data)
+    strata = _held_strata(data)
     for cells in realisations:
         nb, _ = _held(ev.losses(base, cells), data)
         null_base.append(float(nb.mean()))
@@ -474,7 +513,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         held_iou, _ = _held(ev.iou(ext), data)
         gain = held_base - held_ext
         return {"name": name, "params": dict(ext.params), "value": main_value(ext),
-                "heldout_gain": {"mean": float(gain.mean()), "ci95": interval(gain, blocks, rng, opt.bootstrap),
+                "heldout_gain": {"mean": float(gain.mean()), "ci95": interval(gain, blocks, rng, opt.bootstrap, strata),
                                  "unit": "coarse loss"},
                 "heldout_iou_gain": float(held_iou.mean() - held_base_iou.mean()),
                 "best_tried": main_value(Extension(name, min(trace, key=lambda t: t[1])[0], base.base)),
@@ -524,7 +563,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         held_l, _ = _held(ev.losses(chosen, data.cells), data)
         gain = held_base - held_l
         learned = {"params": dict(chosen.params), "heldout_gain": {"mean": float(gain.mean()),
-                                                                   "ci95": interval(gain, blocks, rng, opt.bootstrap)}}
+                                                                   "ci95": interval(gain, blocks, rng, opt.bootstrap, strata)}}
     for c in ranked:
         c.pop("_ext")
 
@@ -534,10 +573,10 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         "decision": decision,
         "candidates": ranked,
         "baseline": {"heldout_loss": float(held_base.mean()), "heldout_iou": float(held_base_iou.mean()),
-                     "ci95_loss": interval(held_base, blocks, rng, opt.bootstrap), "params": base.base or "defaults"},
+                     "ci95_loss": interval(held_base, blocks, rng, opt.bootstrap, strata), "params": base.base or "defaults"},
         "extended": {"name": chosen.name, "heldout_loss": float(held_chosen.mean()),
                      "heldout_iou": float(held_chosen_iou.mean()),
-                     "ci95_loss": interval(held_chosen, blocks, rng, opt.bootstrap)},
+                     "ci95_loss": interval(held_chosen, blocks, rng, opt.bootstrap, strata)},
         "split": split,
         "learned": learned,
         "tracker_corrections": tracker,

@@ -28,6 +28,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "(default 8; the first --null-runs of them are also the candidates' null; one rollout each)")
     p.add_argument("--top", type=int, default=3, metavar="K", help="best candidates checked against the null (default 3)")
     p.add_argument("--no-calibrate", action="store_true", help="keep the base model's lambda_v, lambda_c as stated")
+    p.add_argument("--no-stratify", action="store_true",
+                   help="resample all held-out time blocks as one set for the gain intervals (default: blocks where "
+                        "the source turns and where it rests apart)")
     p.add_argument("--seed", type=int, default=0, help="seed of the null realisations and the resampling")
     p.add_argument("--jobs", type=int, default=min(4, os.cpu_count() or 1), metavar="N",
                    help="processes running the model evaluations (default: this machine's cores, at most 4; "
@@ -46,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         opt = Options(camera=args.camera, candidates=tuple(args.candidates), block_s=args.block,
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
+                      stratify=not args.no_stratify,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),
                                                             ("level_runs", args.level_runs)) if v is not None})

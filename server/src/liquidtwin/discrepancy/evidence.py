@@ -27,7 +27,7 @@ UPRIGHT_RAD = math.radians(30.0)
 REST_RAD_S = 0.3
 
 
-def _tilt_and_speed(ep, index: int) -> tuple[np.ndarray, np.ndarray]:
+def tilt_and_speed(ep, index: int) -> tuple[np.ndarray, np.ndarray]:
     q = ep.poses_at(ep.frame_t)[:, index, 3:]
     x, z = q[:, 0], q[:, 2]
     tilt = np.arccos(np.clip(1.0 - 2.0 * (x * x + z * z), -1.0, 1.0))
@@ -46,7 +46,7 @@ def evidence(eps, sims, frames: list, model_cells: list, obs_cells: list) -> dic
     (F, h, w) bool at each episode's mask ``frames`` (index arrays)."""
     shift, rest, corr_x, corr_y, early, late, extra = [], [], [], [], [], [], []
     for ep, sim, f, cm, co in zip(eps, sims, frames, model_cells, obs_cells):
-        tilt, speed = (a[f] for a in _tilt_and_speed(ep, sim.source_index))
+        tilt, speed = (a[f] for a in tilt_and_speed(ep, sim.source_index))
         nm, no = cm.sum((1, 2)), co.sum((1, 2))
         both = (nm >= MIN_CELLS) & (no >= MIN_CELLS)
         d = centroids(co) - centroids(cm)
