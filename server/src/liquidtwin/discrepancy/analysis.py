@@ -40,7 +40,7 @@ from tqdm.auto import tqdm
 from ..sensors.masks import MaskNoise, corrupt_mask
 from .candidates import COARSE, FINE, LIBRARY, fit_candidate, main_value, tied_range
 from .episode import POSE_SMOOTHING_S, load_episode
-from .evidence import REST_RAD_S, tilt_and_speed, evidence
+from .evidence import REST_RAD_S, evidence, tilt_and_speed
 from .corrections import correction_evidence, fit_learned, pooled, tracker_corrections
 from .model import CANDIDATES, Extension, learned_params
 from .parallel import Workers
@@ -313,11 +313,11 @@ def interval(values: np.ndarray, blocks: np.ndarray, rng, n: int, strata: np.nda
     ``strata`` (per value, constant within a block): resample each stratum's blocks apart, as
     many as it has, so every resample holds as many moving and resting blocks as the recording
     (the stratified bootstrap). The share of blocks in which the source turns is set by the
-    trajectory, not drawn by chance; where a candidate changes the liquid only while it moves
-    (a time offset, the pour's flow), resampling all blocks as one set also draws how many of
-    those blocks there are, and its interval reaches zero on a clear gain (README, "Discrepancy
-    discovery": the stratified intervals). With a stratum of a single block, or one stratum, it
-    falls back to one set."""
+    trajectory, not drawn by chance; resampling all blocks as one set also draws how many of
+    them there are, which widens the interval of a gain that lives in the motion (a time offset,
+    anything that changes the pour's flow) towards zero (README, "Discrepancy discovery": the
+    stratified intervals). With a stratum of a single block, or one stratum, it falls back to
+    one set."""
     ids = np.unique(blocks)
     groups = [values[blocks == i] for i in ids]
     sets = [np.arange(len(groups))]
