@@ -124,6 +124,33 @@ def test_coarse_cells_and_iou_equal_a_pixel_by_pixel_count():
             assert np.allclose(pixel_iou(m, o), iou, rtol=0, atol=1e-15)
 
 
+def test_time_block_split_labels_blocks_moving_by_their_mean_turning_speed():
+    """``_split`` with the source's angular speed: a block is moving when the mean speed over
+    its informative frames exceeds REST_RAD_S; the labels follow each frame's block, the report
+    counts the moving held-out blocks, and without the speed (--no-stratify) there are none."""
+    from types import SimpleNamespace
+
+    from liquidtwin.discrepancy.analysis import _held_strata, _split
+    from liquidtwin.discrepancy.evidence import REST_RAD_S
+    t = np.arange(24) / 8.0                           # 0.125 s frames (exact): blocks of 0.25 s hold 2
+    masks = np.zeros((24, 16, 16), bool)
+    masks[:, 4:12, 4:12] = True
+    ep = SimpleNamespace(masks=masks, frame_t=t, path="rec.mcap")
+    speed = np.zeros(24)
+    speed[[0, 1, 2, 6, 7, 8]] = 2 * REST_RAD_S + 0.1  # blocks 0 and 3 all, 1 and 4 half: mean > rest
+    speed[[9]] = 0.0
+    speed[10] = 2 * REST_RAD_S - 0.1                  # block 5 half, below: mean < rest
+    frames = [np.arange(24)]
+    data, desc = _split([ep], 0.25, frames, speed)
+    block = np.arange(24) // 2
+    want = np.isin(block, [0, 1, 3, 4])
+    assert np.array_equal(data.strata[0], want)
+    assert desc["held_out_blocks_moving"] == 2       # of the held-out (odd) blocks, 1 and 3
+    assert np.array_equal(_held_strata(data), want[block % 2 == 1])
+    plain, desc0 = _split([ep], 0.25, frames)
+    assert plain.strata is None and _held_strata(plain) is None and "held_out_blocks_moving" not in desc0
+
+
 def test_interval_covers_the_mean_and_shrinks_with_data():
     rng = np.random.default_rng(1)
     v = rng.normal(1.0, 0.5, 400)
