@@ -497,3 +497,47 @@ def test_the_benchmark_does_not_credit_an_unidentified_fit():
     tab = table([flat, sharp])
     per = tab["per_class"]["blockage"]
     assert per["within_25pct"] == 1 and per["not_identified"] == 1 and tab["correct"] == 2
+
+
+def test_re_draws_of_one_rollout_equal_drawing_every_particle_afresh(tmp_path):
+    """Observation candidates re-draw one rollout many times, and the render keeps which
+    particles the occluders hide per step and camera centre (``Trajectory.hidden``). Every
+    re-draw — other time offsets, rotated cameras, their repeats — must equal masks drawn with
+    ``camera.visible`` marching every particle afresh."""
+    from liquidtwin.camera import sphere_coverage, sphere_radius_px, visible
+    from liquidtwin.discrepancy.episode import load_episode
+    from liquidtwin.discrepancy.rollout import Simulator
+    from liquidtwin.generate import generate
+    from liquidtwin.session.engine import MIN_RADIUS_PX, NEAR_M, OCCLUSION_MARGIN_PX
+
+    path = tmp_path / "pour.mcap"
+    generate("pour_partial", path, seed=5, quick=True, choices={"source": "mug", "fraction": 0.6})
+    sim = Simulator(load_episode(path))
+    traj = sim.rollout(Extension(), steps=int(1.2 / sim.dt))
+    frames = np.arange(0, 40, 3)
+    occ = list(sim.scene.occluders)
+    grids = [sim.model.objects[k] for k in occ]
+
+    def afresh(ext):
+        cam = camera_for(ext, sim.ep.camera)
+        out = np.zeros((len(frames), cam.height, cam.width), bool)
+        for i, j in enumerate(frames):
+            k = traj.at(float(sim.ep.frame_t[j]) - ext.time_offset_s)
+            x = torch.from_numpy(traj.x[k])
+            poses = torch.as_tensor(traj.poses[k], dtype=torch.float32)
+            seen = visible(cam, x, grids, poses[occ], margin_px=OCCLUSION_MARGIN_PX, near=NEAR_M)
+            uv, depth = cam.project(x)
+            r = sphere_radius_px(cam.fx, depth, sim.radius_m, min_px=MIN_RADIUS_PX)
+            out[i] = (sphere_coverage(uv, r, seen, cam.height, cam.width) > 0).numpy()
+        return out
+
+    exts = [Extension(), Extension("time_offset", {"value": 0.05}), Extension("camera_offset", {"rx": 2.4, "ry": -1.2, "rz": 0.6}),
+            Extension("time_offset", {"value": -0.1}), Extension("camera_offset", {"rx": -2.4, "ry": 2.4, "rz": 0.0}),
+            Extension("time_offset", {"value": 0.05})]
+    hidden_steps = 0
+    for ext in exts:
+        drawn = sim.render(traj, frames, ext=ext)
+        assert drawn.any() and np.array_equal(drawn, afresh(ext)), ext
+        hidden_steps = max(hidden_steps, sum(int((h == 1).sum()) for h in traj.hidden.values()))
+    assert grids and hidden_steps > 0          # occluders did hide particles: the cache was exercised
+    assert len({key[0] for key in traj.hidden}) == 1   # one camera centre for every re-draw

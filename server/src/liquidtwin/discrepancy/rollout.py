@@ -9,13 +9,13 @@ session's: each visible particle drawn as its projected sphere.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from liquidtwin_proto import liquidtwin_pb2 as pb
 
-from ..camera import sphere_coverage, sphere_radius_px, visible
+from ..camera import in_view, segment_blocked, sphere_coverage, sphere_radius_px
 from ..generate.catalog import source_sites
 from ..scenes.fill import fill_container
 from ..scenes.spec import simulation_settings, solve_with
@@ -30,12 +30,15 @@ from .model import Extension, apply_physics, camera_for
 @dataclass(frozen=True, eq=False)
 class Trajectory:
     """One rollout: ``x[k]`` (N_k, 3) float32 particles after step k (k = 0 is the fill, time
-    k·dt), ``poses`` (S + 1, n, 7) the object poses used, ``ext`` the extension simulated."""
+    k·dt), ``poses`` (S + 1, n, 7) the object poses used, ``ext`` the extension simulated.
+    ``hidden``: what :meth:`Simulator.render` has learnt of which particles the occluders hide
+    from a camera centre, {(centre, k): (N_k,) int8, −1 not yet marched, 0 seen, 1 hidden}."""
 
     x: list
     poses: np.ndarray
     dt: float
     ext: Extension
+    hidden: dict = field(default_factory=dict, repr=False)
 
     def at(self, t: float) -> int:
         return int(np.clip(round(t / self.dt), 0, len(self.x) - 1))
@@ -118,7 +121,12 @@ class Simulator:
 
     def render(self, traj: Trajectory, frames=None, *, ext: Extension | None = None) -> np.ndarray:
         """(F, H, W) bool model masks at the episode's mask ``frames`` (indices, default all),
-        with the observation part (time / camera offset) of ``ext`` (default: the rollout's)."""
+        with the observation part (time / camera offset) of ``ext`` (default: the rollout's).
+
+        Each particle is drawn when the camera sees it (``camera.visible``'s rule). Whether an
+        occluder hides it depends only on the step and the camera's centre, which neither a
+        time offset nor a camera rotation moves, so the march is kept in ``traj.hidden`` and
+        the observation candidates' re-draws of one rollout march each particle once."""
         ext = traj.ext if ext is None else ext
         cam = camera_for(ext, self.ep.camera)
         frames = range(len(self.ep.frame_t)) if frames is None else frames
@@ -131,9 +139,25 @@ class Simulator:
                 x = torch.from_numpy(traj.x[k])
                 if x.shape[0] == 0:
                     continue
-                poses = torch.as_tensor(traj.poses[k], dtype=torch.float32)
-                seen = visible(cam, x, grids, poses[occ], margin_px=OCCLUSION_MARGIN_PX, near=NEAR_M)
+                seen = self._seen(traj, k, cam, x, grids, occ)
                 uv, depth = cam.project(x)
                 r = sphere_radius_px(cam.fx, depth, self.radius_m, min_px=MIN_RADIUS_PX)
                 out[i] = (sphere_coverage(uv, r, seen, cam.height, cam.width) > 0).cpu().numpy()
         return out
+
+    def _seen(self, traj: Trajectory, k: int, cam, x: torch.Tensor, grids: list, occ: list) -> torch.Tensor:
+        """(N,) bool: step k's particles ``x`` that ``cam`` sees (as ``camera.visible`` with the
+        session's margin and near plane), marching only those not marched before from this
+        camera centre (``Trajectory.hidden``)."""
+        seen = in_view(cam, x, OCCLUSION_MARGIN_PX, NEAR_M)
+        if not grids or not bool(seen.any()):
+            return seen
+        centre = cam.position.detach().to(x.dtype)
+        state = traj.hidden.get((tuple(centre.tolist()), k))
+        if state is None:
+            state = traj.hidden[(tuple(centre.tolist()), k)] = torch.full((x.shape[0],), -1, dtype=torch.int8)
+        todo = torch.nonzero(seen & (state < 0)).squeeze(1)
+        if todo.numel():
+            poses = torch.as_tensor(traj.poses[k], dtype=torch.float32)[occ]
+            state[todo] = segment_blocked(x[todo], centre, grids, poses).to(torch.int8)
+        return seen & (state == 0)
