@@ -53,7 +53,7 @@ def test_two_worker_processes_give_the_serial_report(tmp_path, monkeypatch):
     assert len(checked) == 2
     # the level is read off 3 realisations, the candidates are fitted on the first one only
     assert serial["null"]["level_runs"] == len(serial["null"]["base_heldout_loss"]) == 3
-    assert all(len(c["null_gains"]) == 1 for c in checked)
+    assert all(len(c["null_gains"]) == len(c["null_fitted"]) == 1 for c in checked)
     assert _comparable(parallel) == _comparable(serial)
     assert parallel["options"]["jobs"] == 2 and parallel["evaluations"] >= serial["evaluations"]
 

@@ -104,7 +104,11 @@ class Options:
     ``null_runs`` of them are the ones the candidates are fitted on; none when null_runs is 0);
     stratify: the intervals of a time-block split resample the held-out blocks where the source
     turns and those where it rests separately (:func:`interval`; False: all blocks as one set,
-    the rule before stop 59)."""
+    the rule before stop 59); prediction_jitter: the model's predictions (the base, its
+    calibration, every candidate) start from the fill with this initial-velocity jitter, m/s,
+    one fixed draw for all of them (``rollout.Simulator``; 0: the settled fill as it is). The
+    null realisations start jittered (:data:`NULL_JITTER`); an unjittered prediction is a
+    realisation of another kind (README, "Discrepancy discovery": the base rollout as an outlier)."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -120,6 +124,7 @@ class Options:
     null_vary: bool = True
     level_runs: int = LEVEL_RUNS
     stratify: bool = True
+    prediction_jitter: float = 0.0
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -136,6 +141,8 @@ class Options:
         if isinstance(self.extra_iterations, bool) or not isinstance(self.extra_iterations, int) \
                 or not 0 <= self.extra_iterations <= 20:
             raise ValueError(f"extra_iterations must be a whole number in [0, 20], got {self.extra_iterations!r}")
+        if not 0 <= self.prediction_jitter <= 0.1:
+            raise ValueError(f"prediction_jitter must be in [0, 0.1] m/s, got {self.prediction_jitter!r}")
         if not 0 <= self.pose_smoothing_s <= 1:
             raise ValueError(f"pose_smoothing_s must be in [0, 1] s, got {self.pose_smoothing_s!r}")
 
@@ -400,7 +407,7 @@ def prepare(sources: list, opt: Options, bar=None) -> tuple:
     Simulators, the _Evaluator restricted to the informative frames, those frames per
     episode, the fit / held-out split and its description, the worker pool or None)."""
     eps = [load_episode(s, opt.camera, opt.pose_smoothing_s) for s in sources]
-    sims = [Simulator(e, extra_iterations=opt.extra_iterations) for e in eps]
+    sims = [Simulator(e, extra_iterations=opt.extra_iterations, jitter=opt.prediction_jitter) for e in eps]
     ev = _Evaluator(sims, bar)
     # Frames where neither the recording nor the stated model shows liquid say nothing.
     frames = [np.nonzero((coarse(e.masks).sum((1, 2)) >= MIN_CELLS) | (c.sum((1, 2)) >= MIN_CELLS))[0]
@@ -408,7 +415,7 @@ def prepare(sources: list, opt: Options, bar=None) -> tuple:
     turning = tilt_and_speed(eps[0], sims[0].source_index)[1] if opt.stratify and len(eps) == 1 else None
     data, split = _split(eps, opt.block_s, frames, turning)
     ev.restrict(frames)
-    pool = Workers(ev, eps, frames, opt.jobs, opt.extra_iterations) if opt.jobs > 1 else None
+    pool = Workers(ev, eps, frames, opt.jobs, opt.extra_iterations, opt.prediction_jitter) if opt.jobs > 1 else None
     return eps, sims, ev, frames, data, split, pool
 
 
@@ -543,12 +550,13 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     def null_gains(c):
         if pool is not None:
             pool.fit([(c["name"], cells) for cells, _ in null_cells], FINE, base.base, data.fit)
-        out = []
+        out, c["null_fitted"] = [], []
         for cells, nb in null_cells:
             nd = _Data(cells, data.fit, data.held, data.blocks)
             ext, _, _ = fit_candidate(c["name"], lambda e: ev.fit_loss(e, nd), base.base, FINE, ev.upper(c["name"]))
             ne, _ = _held(ev.losses(ext, cells), data)
             out.append(float((nb - ne).mean()))
+            c["null_fitted"].append(main_value(ext))   # what the candidate fits where nothing is hidden
         return out
 
     declared = declare(ranked[: opt.top], residual_real, null_gains)

@@ -31,6 +31,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-stratify", action="store_true",
                    help="resample all held-out time blocks as one set for the gain intervals (default: blocks where "
                         "the source turns and where it rests apart)")
+    p.add_argument("--prediction-jitter", type=float, default=0.0, metavar="V",
+                   help="start the model's predictions from the fill with this initial-velocity jitter, m/s, one "
+                        "fixed draw (default 0; the null realisations use 0.001)")
     p.add_argument("--seed", type=int, default=0, help="seed of the null realisations and the resampling")
     p.add_argument("--jobs", type=int, default=min(4, os.cpu_count() or 1), metavar="N",
                    help="processes running the model evaluations (default: this machine's cores, at most 4; "
@@ -49,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         opt = Options(camera=args.camera, candidates=tuple(args.candidates), block_s=args.block,
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
-                      stratify=not args.no_stratify,
+                      stratify=not args.no_stratify, prediction_jitter=args.prediction_jitter,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),
                                                             ("level_runs", args.level_runs)) if v is not None})
@@ -63,7 +66,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"held-out IOU   base {b['heldout_iou']:.3f}  extended {e['heldout_iou']:.3f}")
     for c in report["candidates"][:5]:
         g = c["heldout_gain"]
-        print(f"  {c['name']:<14} gain {g['mean']:+.3f} [{g['ci95'][0]:+.3f}, {g['ci95'][1]:+.3f}]"
-              f"{'  declared' if c.get('declared') else ''}")
+        null = ""
+        if c.get("null_gains"):
+            null = ("  null gains " + ", ".join(f"{v:+.3f}" for v in c["null_gains"])
+                    + " (fitted there " + ", ".join(f"{v:.3g}" for v in c.get("null_fitted") or []) + ")")
+        print(f"  {c['name']:<14} fitted {c['value']:.3g}  gain {g['mean']:+.3f} [{g['ci95'][0]:+.3f}, {g['ci95'][1]:+.3f}]"
+              f"{null}{'  declared' if c.get('declared') else ''}")
     print(f"report: {args.out}/report.md  ({report['timing_s']['total']:.0f} s)")
     return 0

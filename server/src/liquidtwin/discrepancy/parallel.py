@@ -38,14 +38,14 @@ WHAT = "the discrepancy analysis"
 _EV = None
 
 
-def _init(eps, frames, extra_iterations) -> None:
+def _init(eps, frames, extra_iterations, jitter) -> None:
     global _EV
     import torch
 
     from .analysis import _Evaluator
     from .rollout import Simulator
     torch.set_num_threads(1)
-    _EV = _Evaluator([Simulator(e, extra_iterations=extra_iterations) for e in eps], None)
+    _EV = _Evaluator([Simulator(e, extra_iterations=extra_iterations, jitter=jitter) for e in eps], None)
     _EV.restrict(frames)
 
 
@@ -78,10 +78,10 @@ def _run(task) -> tuple:
 class Workers:
     """``jobs`` spawned processes evaluating for the analysis's :class:`_Evaluator` ``ev``."""
 
-    def __init__(self, ev, eps, frames, jobs: int, extra_iterations: int = 0):
+    def __init__(self, ev, eps, frames, jobs: int, extra_iterations: int = 0, jitter: float = 0.0):
         self.ev = ev
         self.jobs = jobs
-        self.pool = procs.pool(jobs, initializer=_init, initargs=(list(eps), list(frames), extra_iterations))
+        self.pool = procs.pool(jobs, initializer=_init, initargs=(list(eps), list(frames), extra_iterations, jitter))
 
     def _start(self, tasks: list):
         """Hand ``tasks`` to the workers now; returns a call that waits for their results (in

@@ -25,7 +25,8 @@ def _fmt(v, nd=3) -> str:
 
 def _null_cell(c: dict) -> str:
     if "null_gains" in c:
-        return _fmt(c["null_gains"])
+        fitted = c.get("null_fitted")
+        return _fmt(c["null_gains"]) + (f", fitted {_fmt(fitted)}" if fitted else "")
     return f"not fitted: {c['null_skipped']}" if "null_skipped" in c else ""
 
 
@@ -38,7 +39,7 @@ def markdown(report: dict) -> str:
              f"| base ({_fmt(b['params'])}) | {b['heldout_loss']:.3f} | {_fmt(b['ci95_loss'])} | {b['heldout_iou']:.3f} |",
              f"| extended (`{e['name']}`) | {e['heldout_loss']:.3f} | {_fmt(e['ci95_loss'])} | {e['heldout_iou']:.3f} |", "",
              "## Candidates, ranked by held-out gain", "",
-             "| # | candidate | fitted | gain | 95 % interval | IOU gain | null gains | threshold | declared |",
+             "| # | candidate | fitted | gain | 95 % interval | IOU gain | null gains (fitted there) | threshold | declared |",
              "|---|---|---|---|---|---|---|---|---|"]
     for i, c in enumerate(report["candidates"], 1):
         g = c["heldout_gain"]

@@ -47,10 +47,16 @@ class Trajectory:
 class Simulator:
     """The episode's scene, built once; rollouts of any extension of its model.
     ``extra_iterations``: solver iterations added to the recording's stated count (the fill
-    is settled with them too), with the stated count's cohesion (``FluidModel.reference_iterations``)."""
+    is settled with them too), with the stated count's cohesion (``FluidModel.reference_iterations``).
+    ``jitter``: rollouts from the fill start with this initial-velocity jitter, m/s, the same
+    draw every time (``Options.prediction_jitter``)."""
 
-    def __init__(self, ep: Episode, *, progress: bool = False, extra_iterations: int = 0):
+    #: Seed of the prediction jitter's one draw.
+    JITTER_SEED = 12345
+
+    def __init__(self, ep: Episode, *, progress: bool = False, extra_iterations: int = 0, jitter: float = 0.0):
         self.ep = ep
+        self.jitter = float(jitter)
         spec = ep.spec
         if extra_iterations:
             spec = pb.SessionSpec()
@@ -106,7 +112,13 @@ class Simulator:
         the recorded poses (or ``poses``: another (T, n, 7) series on the recording's pose
         sample times)."""
         model = apply_physics(ext, self.model, self.sites)
-        x0, v0 = self.initial(ext.fill_scale) if initial is None else initial
+        if initial is None:
+            x0, v0 = self.initial(ext.fill_scale)
+            if self.jitter > 0:
+                g = torch.Generator().manual_seed(self.JITTER_SEED)
+                v0 = v0 + self.jitter * torch.randn(v0.shape, generator=g, dtype=v0.dtype)
+        else:
+            x0, v0 = initial
         step_poses = self.step_poses if poses is None else self.ep.poses_at(np.arange(self.steps + 1) * self.dt, poses)
         poses = torch.as_tensor(step_poses)
         state = make_state(x0, v0, poses=poses[0], dtype=torch.float32)
