@@ -541,3 +541,16 @@ def test_re_draws_of_one_rollout_equal_drawing_every_particle_afresh(tmp_path):
         hidden_steps = max(hidden_steps, sum(int((h == 1).sum()) for h in traj.hidden.values()))
     assert grids and hidden_steps > 0          # occluders did hide particles: the cache was exercised
     assert len({key[0] for key in traj.hidden}) == 1   # one camera centre for every re-draw
+
+
+def test_a_few_benchmark_classes_are_the_full_runs_recordings():
+    """``evaluate discrepancy --classes …`` must analyse the recordings the full run does: the
+    seed, trajectory and container of a class's case do not depend on which others run (they
+    were numbered by the place in the asked list, so `--classes drag` analysed another pour)."""
+    from liquidtwin.evaluate.discrepancy import _classes, disc_cases
+    full = {c.name: c for c in disc_cases(quick=True, trials=2, base_seed=5000)}
+    assert len(full) == 2 * len(_classes())
+    for few in (("drag",), ("fill_error", "none", "viscosity")):
+        cases = disc_cases(quick=True, trials=2, base_seed=5000, classes=few)
+        assert [c.planted for c in cases] == [p for p in few for _ in range(2)]
+        assert all(full[c.name] == c for c in cases)

@@ -54,9 +54,12 @@ class DiscCase:
 def disc_cases(*, quick: bool, trials: int, base_seed: int = 0, classes=None) -> list[DiscCase]:
     """Seeds ``base_seed + 100·class + trial``; hold/partial and cup/mug alternate over the
     classes and trials (k = class + trial: hold, partial, hold, partial … with cup, cup, mug,
-    mug …)."""
+    mug …). ``class`` is the planted class's place among all of them (:func:`_classes`), so a
+    run of a few ``classes`` analyses the very recordings the full run does."""
     out = []
-    for i, planted in enumerate(classes or _classes()):
+    every = _classes()
+    for planted in classes or every:
+        i = every.index(planted)
         for t in range(trials):
             seed = base_seed + 100 * i + t
             k = i + t
