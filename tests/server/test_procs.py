@@ -4,6 +4,7 @@ it is, and a worker that dies stops the run with a clear error instead of a wait
 
 import os
 import time
+from pathlib import Path
 
 import pytest
 from worker_watch import no_workers_left, within
@@ -32,6 +33,31 @@ def _slow(x):
     if x:
         time.sleep(60)
     return x
+
+
+def _mark_clean_exit(job):
+    """Register, in the worker, a clean-up that writes a marker when the worker exits on its
+    own (a terminated worker runs none: its semaphores were left to the resource tracker)."""
+    import multiprocessing.util
+    folder, x = job
+    marker = Path(folder) / f"exited-{os.getpid()}"
+    if not getattr(_mark_clean_exit, "registered", False):
+        multiprocessing.util.Finalize(None, marker.write_text, args=("clean",), exitpriority=10)
+        _mark_clean_exit.registered = True
+    time.sleep(0.2)
+    return x, os.getpid()
+
+
+def test_a_caller_that_stops_at_the_last_result_lets_the_workers_exit_cleanly(tmp_path):
+    """``zip(cases, map_jobs(...))`` stops at the last result without finishing the generator;
+    the workers used to be terminated then, and the resource tracker warned of leaked semaphores
+    at exit (``evaluate discrepancy --jobs 2``)."""
+    cases = ["a", "b", "c", "d"]
+    got = [(c, r, pid) for c, (r, pid) in zip(cases, map_jobs(_mark_clean_exit, [(str(tmp_path), i) for i in range(4)], 2))]
+    assert [(c, r) for c, r, _ in got] == list(zip(cases, range(4)))
+    assert within(30, no_workers_left) == {"value": True}
+    marked = {int(m.name.split("-")[1]) for m in tmp_path.glob("exited-*")}
+    assert marked == {pid for _, _, pid in got}, "every worker ran its clean-up: it exited on its own"
 
 
 def test_results_come_in_order_from_other_processes_or_as_they_finish():

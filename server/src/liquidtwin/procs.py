@@ -60,14 +60,16 @@ def map_jobs(fn, work, jobs: int, *, ordered: bool = True, what: str = "this run
         yield from map(fn, work)
         return
     ex = pool(min(jobs, len(work)))
-    finished = False
+    futures: list = []
     try:
         futures = [ex.submit(fn, w) for w in work]
         for f in (futures if ordered else as_completed(futures)):
             yield result(f, what)
-        finished = True
     finally:
-        if finished:
+        # Every task done (also when the caller stopped at the last result, as zip does):
+        # the workers exit on their own and run their clean-up; a worker terminated instead
+        # leaves its semaphores (tqdm's lock) to the resource tracker's "leaked" warning.
+        if futures and all(f.done() for f in futures):
             ex.shutdown(wait=True)
         else:
             stop(ex)
