@@ -718,79 +718,63 @@ bool march(const T* a, const T* b, const std::vector<Grid<T>>& gs, const std::ve
   const T len = std::sqrt(len2);
   const T inv_len = T(1) / std::max(len, T(1e-30));
   for (int k = 0; k < 3; ++k) d[k] *= inv_len;
-  // Per object, what does not change along the segment: its direction in the object frame and
-  // the slab test's reciprocals. `loc` holds the current sample in every object's frame: the
-  // box test after a step transforms the next sample, which the next round samples.
+  // Per object, what does not change along the segment (the slab test's reciprocals of its
+  // direction in the object frame) and the current sample in the object frame (`loc`: the
+  // box test after a step transforms the next sample, which the next round samples). Held on
+  // the stack for up to kMax objects, on the heap beyond.
+  struct PerObject {
+    T inv[3], loc[3], ix[3], out;
+    int64_t order;  // a permutation stored alongside: ob[i].order is the object at place i
+  };
   constexpr int64_t kMax = 8;
-  T ul[kMax][3], inv[kMax][3], loc[kMax][3];
-  const bool small = m <= kMax;
-  if (small) {
-    for (int64_t j = 0; j < m; ++j) {
-      const auto& R = frames[j].R;
-      for (int k = 0; k < 3; ++k) {
-        ul[j][k] = d[0] * R[k] + d[1] * R[3 + k] + d[2] * R[6 + k];
-        inv[j][k] = T(1) / (std::abs(ul[j][k]) < T(1e-12) ? T(1e-12) : ul[j][k]);
-      }
-      frames[j].local(q0, loc[j]);
+  PerObject stack[kMax];
+  std::vector<PerObject> heap(m > kMax ? m : 0);
+  PerObject* ob = m > kMax ? heap.data() : stack;
+  for (int64_t j = 0; j < m; ++j) {
+    const auto& R = frames[j].R;
+    for (int k = 0; k < 3; ++k) {
+      const T u = d[0] * R[k] + d[1] * R[3 + k] + d[2] * R[6 + k];
+      ob[j].inv[k] = T(1) / (std::abs(u) < T(1e-12) ? T(1e-12) : u);
     }
+    frames[j].local(q0, ob[j].loc);
   }
   T s = 0;
   for (int64_t r = 0; r < rounds; ++r) {
+    // f = min over objects of their lower bounds; an object whose grid box alone is at least
+    // f away cannot lower it (its bound is >= that distance), so its 8 corners go unread.
+    // Objects are taken nearest box first (`order`); the minimum does not depend on order.
+    for (int64_t j = 0; j < m; ++j) {
+      T du[3];
+      bool in[3];
+      ob[j].out = gs[j].locate(ob[j].loc, ob[j].ix, du, in);
+      ob[j].order = j;
+      for (int64_t i = j; i > 0 && ob[ob[i].order].out < ob[ob[i - 1].order].out; --i)
+        std::swap(ob[i].order, ob[i - 1].order);
+    }
     T f = std::numeric_limits<T>::infinity();
-    if (small) {
-      // f = min over objects of their lower bounds; an object whose grid box alone is at
-      // least f away cannot lower it (its bound is >= that distance), so its 8 corners go
-      // unread. Objects are taken nearest box first; the minimum does not depend on order.
-      T ix[kMax][3], out[kMax];
-      int64_t byd[kMax];
-      for (int64_t j = 0; j < m; ++j) {
-        T du[3];
-        bool in[3];
-        out[j] = gs[j].locate(loc[j], ix[j], du, in);
-        byd[j] = j;
-        for (int64_t i = j; i > 0 && out[byd[i]] < out[byd[i - 1]]; --i) std::swap(byd[i], byd[i - 1]);
-      }
-      for (int64_t i = 0; i < m; ++i) {
-        const int64_t j = byd[i];
-        if (out[j] > 0 && out[j] >= f) break;
-        const T val = gs[j].trilinear(ix[j]);
-        f = std::min(f, out[j] > 0 ? std::max(out[j], val - out[j]) : val);
-      }
-    } else {
-      T q[3] = {q0[0] + s * d[0], q0[1] + s * d[1], q0[2] + s * d[2]};
-      for (int64_t j = 0; j < m; ++j) {
-        T lc[3], val, outside;
-        frames[j].local(q, lc);
-        gs[j].sample(lc, val, outside);
-        f = std::min(f, outside > 0 ? std::max(outside, val - outside) : val);
-      }
+    for (int64_t i = 0; i < m; ++i) {
+      const PerObject& o = ob[ob[i].order];
+      if (o.out > 0 && o.out >= f) break;
+      const T val = gs[ob[i].order].trilinear(o.ix);
+      f = std::min(f, o.out > 0 ? std::max(o.out, val - o.out) : val);
     }
     if (f < -tl) return true;
     s += std::max(f, st);
     if (!(s < len)) return false;
-    // does the rest of the segment meet any object's grid box?
+    // does the rest of the segment meet any object's grid box? (every object's frame of the
+    // new sample is made: the next round samples it)
     const T rest = std::max(len - s, T(0));
     T q[3];
     for (int k = 0; k < 3; ++k) q[k] = q0[k] + s * d[k];
     bool meets = false;
-    for (int64_t j = 0; j < m && (small || !meets); ++j) {
-      T pl[3], ulj[3], invj[3];
-      T* p = small ? loc[j] : pl;
+    for (int64_t j = 0; j < m; ++j) {
+      T* p = ob[j].loc;
       frames[j].local(q, p);
-      if (meets) continue;       // (small: every object's frame is still needed next round)
-      if (small) {
-        for (int k = 0; k < 3; ++k) { ulj[k] = ul[j][k]; invj[k] = inv[j][k]; }
-      } else {
-        const auto& R = frames[j].R;
-        for (int k = 0; k < 3; ++k) {
-          ulj[k] = d[0] * R[k] + d[1] * R[3 + k] + d[2] * R[6 + k];
-          invj[k] = T(1) / (std::abs(ulj[k]) < T(1e-12) ? T(1e-12) : ulj[k]);
-        }
-      }
+      if (meets) continue;
       T enter = 0, leave = rest;
       for (int k = 0; k < 3; ++k) {
         const T lo = gs[j].origin[k], hi = lo + gs[j].extent[k] * gs[j].cell;
-        const T ta = (lo - p[k]) * invj[k], tb = (hi - p[k]) * invj[k];
+        const T ta = (lo - p[k]) * ob[j].inv[k], tb = (hi - p[k]) * ob[j].inv[k];
         enter = std::max(enter, std::min(ta, tb));
         leave = std::min(leave, std::max(ta, tb));
       }

@@ -276,6 +276,13 @@ def test_native_occlusion_march_equals_the_torch_march(dtype):
                        segment_blocked(x, one_camera, objects, poses, backend="torch"))
     with pytest.raises(ValueError, match="backend"):
         segment_blocked(x, one_camera, objects, poses, backend="cuda")
+    # more objects than the march keeps on its stack (8): the same samples from the heap
+    many = objects * 5
+    shifts = torch.arange(len(many), dtype=torch.float64)[:, None] * torch.tensor([0.03, -0.02, 0.025])
+    poses_many = torch.cat([poses.double().repeat(5, 1)[:, :3] + shifts, poses.double().repeat(5, 1)[:, 3:]], 1).to(dtype)
+    ref = segment_blocked(x[:1000], cams[:1000], many, poses_many, backend="torch")
+    assert 100 < int(ref.sum()) < 900
+    assert torch.equal(segment_blocked(x[:1000], cams[:1000], many, poses_many), ref)
 
 
 def test_visible_front_and_image_bounds():

@@ -165,9 +165,10 @@ class Simulator:
         if not grids or not bool(seen.any()):
             return seen
         centre = cam.position.detach().to(x.dtype)
-        state = traj.hidden.get((tuple(centre.tolist()), k))
+        key = (tuple(centre.tolist()), k)
+        state = traj.hidden.get(key)
         if state is None:
-            state = traj.hidden[(tuple(centre.tolist()), k)] = torch.full((x.shape[0],), -1, dtype=torch.int8)
+            state = traj.hidden[key] = torch.full((x.shape[0],), -1, dtype=torch.int8)
         todo = torch.nonzero(seen & (state < 0)).squeeze(1)
         if todo.numel():
             poses = torch.as_tensor(traj.poses[k], dtype=torch.float32)[occ]
