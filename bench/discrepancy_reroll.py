@@ -1,11 +1,12 @@
 """Is an analysis's base rollout a typical realisation of its own model? (stop 60)
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/discrepancy_reroll.py REC.mcap --lambda-v 75 --lambda-c 0.11
-        [--nulls 4] [--draws 4] [--drag 0.526 4.21]
+        [--nulls 4] [--draws 4] [--drag 0.526 4.21] [--jitters 1e-3]
 
 Prints the held-out coarse loss (the analysis's split and metric) of: the base rollout (the
 settled fill as it is, how ``discrepancy.analyse`` predicts), the same physics re-rolled with
-the initial velocities jittered by ``NULL_JITTER`` (``--draws`` draws), and drag extensions
+the initial velocities jittered (``--draws`` draws at each of ``--jitters`` m/s, default
+``NULL_JITTER``), and drag extensions
 (``--drag`` values), each against the recording and against the first ``--nulls`` null
 realisations of the analysis (``analysis._null_cells``, seed 0). Take the calibrated λ_v, λ_c
 from the analysis's report (``baseline.params``). Reads the recording only.
@@ -26,6 +27,8 @@ def main() -> None:
     p.add_argument("--nulls", type=int, default=4, help="null realisations to score against (default 4)")
     p.add_argument("--draws", type=int, default=4, help="jittered re-rolls of the base (default 4)")
     p.add_argument("--drag", type=float, nargs="*", default=[0.526, 4.21], help="drag coefficients, 1/m")
+    p.add_argument("--jitters", type=float, nargs="*", default=None,
+                   help="initial-velocity jitters of the re-rolls, m/s (default: the null's NULL_JITTER)")
     a = p.parse_args()
     torch.set_num_threads(1)
     from liquidtwin.discrepancy.analysis import NULL_JITTER, Options, _null_cells, prepare
@@ -49,9 +52,10 @@ def main() -> None:
 
     row("base", sim.rollout(base), base)
     x0, v0 = sim.initial(1.0)
-    for k in range(a.draws):
-        g = torch.Generator().manual_seed(100 + k)
-        row(f"base re-rolled {k}", sim.rollout(base, initial=(x0, v0 + NULL_JITTER * torch.randn(v0.shape, generator=g))), base)
+    for jitter in (a.jitters if a.jitters is not None else [NULL_JITTER]):
+        for k in range(a.draws):
+            g = torch.Generator().manual_seed(100 + k)
+            row(f"base {jitter:g} m/s {k}", sim.rollout(base, initial=(x0, v0 + jitter * torch.randn(v0.shape, generator=g))), base)
     for c in a.drag:
         e = Extension("drag", {"c": c}, base.base)
         row(f"drag {c:g}", sim.rollout(e), e)
