@@ -39,7 +39,7 @@ def test_two_worker_processes_give_the_serial_report(tmp_path, monkeypatch):
     # a physics candidate (re-simulated in the workers) and an observation one (re-drawn); the
     # calibration's trials run in the workers, the planted offset makes the residual real, and
     # every candidate is fitted on the null there too (decided here, in this process)
-    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, level_runs=3, bootstrap=200)
+    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, level_runs=3, bootstrap=200, reference="best")
     monkeypatch.setattr(analysis, "declare", _null_fit_every_candidate)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)           # as each worker: the same float rounding
@@ -54,6 +54,13 @@ def test_two_worker_processes_give_the_serial_report(tmp_path, monkeypatch):
     # the level is read off 3 realisations, the candidates are fitted on the first one only
     assert serial["null"]["level_runs"] == len(serial["null"]["base_heldout_loss"]) == 3
     assert all(len(c["null_gains"]) == len(c["null_fitted"]) == 1 for c in checked)
+    # the drag's gains are measured from the best of the base rollout and its 3 realisations
+    ref = serial["reference"]
+    assert ref["kind"] == "best" and ref["predictions"] == 4
+    assert ref["which"] in ("base", "realisation 0", "realisation 1", "realisation 2")
+    assert ref["heldout_loss"] <= serial["baseline"]["heldout_loss"]
+    # … except the time offset's, which re-draws the base rollout (paired, free of its chaos)
+    assert {c["name"]: c["reference"] for c in serial["candidates"]} == {"drag": "best", "time_offset": "base"}
     assert _comparable(parallel) == _comparable(serial)
     assert parallel["options"]["jobs"] == 2 and parallel["evaluations"] >= serial["evaluations"]
 

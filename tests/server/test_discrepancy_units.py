@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from liquidtwin.discrepancy import CANDIDATES, Extension, Options, apply_physics, camera_for, load_model, save_model
-from liquidtwin.discrepancy.analysis import NULL_FACTOR, NULL_MARGIN, declare, interval
+from liquidtwin.discrepancy.analysis import NULL_FACTOR, NULL_MARGIN, _Data, declare, interval, reference
 from liquidtwin.discrepancy.candidates import COARSE, FINE, LIBRARY, _line, _vertex, fit_candidate, main_value
 from liquidtwin.discrepancy.model import model_from_dict, rotation_deg
 from liquidtwin.discrepancy.residuals import CELL, EMPTY_W1, cell_metrics, coarse, pixel_iou
@@ -417,6 +417,56 @@ def test_the_null_is_fitted_only_where_it_can_change_the_decision():
                           if c["heldout_gain"]["ci95"][0] > 0 and c["heldout_gain"]["mean"] > NULL_MARGIN]
     assert 0 < fitted_total < 300 * 3       # the draw exercises both fitting and skipping
     assert 0 < declared_real and 0 < declared_not_real    # and declaring with and without a real residual
+
+
+def _shifted(cells: np.ndarray, cols: int) -> np.ndarray:
+    return np.roll(cells, cols, axis=2)
+
+
+def test_the_gains_reference_over_the_base_models_predictions():
+    # one episode of 12 frames, blocks of 3, every other block held out; the observed blob and
+    # predictions shifted sideways by 3, 1 and 2 cells, plus one that is exact on the fitting
+    # frames only (the held-out frames decide, not the fit)
+    obs = np.zeros((12, 6, 10), bool)
+    obs[:, 2:4, 3:6] = True
+    held = np.repeat(np.arange(4) % 2 == 1, 3)
+    blocks = np.repeat(np.arange(4), 3)
+    data = _Data([obs], [~held], [held], [blocks])
+    fit_only = obs.copy()
+    fit_only[held] = _shifted(obs[held], 4)
+    preds = [[_shifted(obs, 3)], [_shifted(obs, 1)], [fit_only], [_shifted(obs, 2)]]
+    per = [cell_metrics(p[0], obs)["loss"][held] for p in preds]
+    assert len(per[0]) == held.sum() and all((x > 0).all() for x in per)
+    losses, k = reference(preds, [obs], data, "best")
+    assert k == 1 and np.array_equal(losses, per[1])
+    losses, k = reference(preds, [obs], data, "base")
+    assert k == 0 and np.array_equal(losses, per[0])
+    # the median, frame by frame (an even count: the mean of the middle two)
+    losses, k = reference(preds, [obs], data, "median")
+    middle = [sorted(frame)[1:3] for frame in zip(*per)]
+    assert k is None and np.allclose(losses, [0.5 * (a + b) for a, b in middle])
+    assert per[1].mean() < losses.mean() < per[0].mean()
+    with pytest.raises(ValueError, match="reference"):
+        reference(preds, [obs], data, "mean")
+
+
+def test_against_the_best_prediction_a_negative_null_gain_does_not_raise_the_bar():
+    # a fit that is one more realisation of the base model loses against the best of them by
+    # construction: its negative null gains are not chance moving the loss. Measured from the
+    # base rollout or the median of the predictions they still are.
+    def top(ref):
+        return [{"name": "drag", "reference": ref, "heldout_gain": {"mean": 0.3, "ci95": [0.1, 0.5]}}]
+    t = top("best")
+    assert declare(t, False, lambda c: [-0.225, -0.107]) is t[0]
+    assert t[0]["null_threshold"] == pytest.approx(NULL_MARGIN)
+    for ref in ("base", "median"):
+        t = top(ref)
+        assert declare(t, False, lambda c: [-0.225, -0.107]) is None      # 0.3 < 1.5 × 0.225 + margin
+    t = top("best")
+    assert declare(t, False, lambda c: [0.25, -0.4]) is None               # a positive null gain still counts
+    assert t[0]["null_threshold"] == pytest.approx(NULL_FACTOR * 0.25 + NULL_MARGIN)
+    with pytest.raises(ValueError, match="reference"):
+        Options(reference="ensemble")
 
 
 def test_without_null_realisations_nothing_is_declared():

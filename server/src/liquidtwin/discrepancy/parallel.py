@@ -69,7 +69,7 @@ def _run(task) -> tuple:
         ev.cells(ext)
     elif kind == "null":
         run, seed_value, base, vary = args
-        result = _null_cells(ev.sims, ev.frames, base, run, seed_value, vary)
+        result = _null_cells(ev.sims, ev.frames, base, run, seed_value, vary, clean=True)
     else:
         raise ValueError(f"unknown task {kind!r}")
     return result, ev.take_fresh()
@@ -162,8 +162,9 @@ class Workers:
             raise RuntimeError(f"searches {sorted(waiting)} were left waiting")
 
     def null_cells(self, runs: int, seed: int, base, vary: bool = True):
-        """Start :func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1; returns a call that
-        waits for them (the list, in run order), so this process can work meanwhile."""
+        """Start :func:`~.analysis._null_cells` of runs 0 … ``runs`` − 1 (with their clean cells);
+        returns a call that waits for them (the list, in run order), so this process can work
+        meanwhile."""
         return self._start([("null", r, seed, base, vary, {}) for r in range(runs)])
 
     def close(self, abort: bool = False) -> None:

@@ -30,6 +30,21 @@ def _null_cell(c: dict) -> str:
     return f"not fitted: {c['null_skipped']}" if "null_skipped" in c else ""
 
 
+def _ref_kind(report: dict) -> str:
+    return (report.get("reference") or {}).get("kind", "base")
+
+
+def _reference_line(report: dict) -> str:
+    r = report.get("reference")
+    if not r or r["kind"] == "base":
+        return "Gains are measured from the base rollout's held-out loss."
+    what = ("per frame the median loss of" if r["kind"] == "median"
+            else f"the one that misses the held-out frames least ({r.get('which')}) of")
+    return (f"Gains of physics and fill candidates are measured from {what} the base model's {r['predictions']} "
+            f"predictions, its rollout and its realisations (held-out loss {r['heldout_loss']:.3f}); those of "
+            "observation candidates (time and camera offsets), which re-draw the base rollout, from that rollout.")
+
+
 def markdown(report: dict) -> str:
     """report.md: decision, base vs extended, the candidate ranking with the null, the split."""
     b, e = report["baseline"], report["extended"]
@@ -38,7 +53,7 @@ def markdown(report: dict) -> str:
              "| held-out | loss (lower is better) | 95 % interval | IOU |", "|---|---|---|---|",
              f"| base ({_fmt(b['params'])}) | {b['heldout_loss']:.3f} | {_fmt(b['ci95_loss'])} | {b['heldout_iou']:.3f} |",
              f"| extended (`{e['name']}`) | {e['heldout_loss']:.3f} | {_fmt(e['ci95_loss'])} | {e['heldout_iou']:.3f} |", "",
-             "## Candidates, ranked by held-out gain", "",
+             "## Candidates, ranked by held-out gain", "", _reference_line(report), "",
              "| # | candidate | fitted | gain | 95 % interval | IOU gain | null gains (fitted there) | threshold | declared |",
              "|---|---|---|---|---|---|---|---|---|"]
     for i, c in enumerate(report["candidates"], 1):
@@ -71,8 +86,12 @@ def markdown(report: dict) -> str:
               "this decides `unexplained` against `none` when nothing is declared). "
               f"A candidate is declared when its gain's interval is above 0 and its gain exceeds "
               f"{report['null']['factor']} × its best null gain (its largest null gain's magnitude when the residual is not "
-              f"real) + {report['null']['margin']}; the best few are fitted on the first {report['null']['runs']} "
-              "realisations in ranked order until one is declared.", "",
+              "real" + (" and its gains are not measured from the best prediction" if _ref_kind(report) == "best" else "") + ")"
+              + f" + {report['null']['margin']}; the best few are fitted on the first {report['null']['runs']} "
+              "realisations in ranked order until one is declared"
+              + (", a physics candidate's gain there measured from the base model's other predictions"
+                 if _ref_kind(report) != "base" else "")
+              + ".", "",
               "Time per stage (s): " + ", ".join(f"{k} {v}" for k, v in report["timing_s"].items()), ""]
     return "\n".join(lines)
 
