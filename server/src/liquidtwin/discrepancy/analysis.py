@@ -16,17 +16,15 @@
    strict the null check is (6), and labels the outcome when nothing is declared.
 5. Name the cause: fit every candidate of the library coarsely on the fitting frames, refit
    the ``top`` best (lowest fitting loss) finely, and rank them by their gain on the held-out
-   frames (95 % interval by resampling held-out blocks). The gain is measured from the base
-   model's prediction that misses the held-out frames least, of its rollout and the
-   realisations of (4) (``reference``; ``Options.reference``): a pour's chaos splits the
-   realisations of one model into distinct flows, and measured from the one base rollout a
-   candidate "gains" whenever it lands in another flow the recording happens to share.
+   frames (95 % interval by resampling held-out blocks), measured from the base rollout.
+   ``Options.reference`` measures a physics or fill candidate's gain from the best (or the
+   per-frame median) of the base model's predictions instead, its rollout and the
+   realisations of (4) (:func:`reference`; off: stop 61 measured it naming no more right).
 6. Guard against false discovery: in ranked order, a candidate whose held-out gain interval
-   is above zero is fitted again on the null realisations (its gain there measured from the
-   best of the other predictions of the base model), and declared when its gain exceeds
-   ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN`` (``declare``: the largest null gain; with
-   the base rollout as the reference and a residual that is not real, the largest null gain's
-   magnitude). The first declared
+   is above zero is fitted again on the null realisations, and declared when its gain exceeds
+   ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN`` (``declare``: the largest null gain when
+   the residual is real, the largest null gain's magnitude when it is not — except against
+   the best prediction, ``Options.reference``). The first declared
    is the decision (the ones after it are not checked). When none is, the residual is
    ``unexplained`` if it is real — and a minimum-norm learned correction is fitted instead —
    else ``none``.
@@ -92,7 +90,7 @@ NULL_PARAM_SPREAD = 0.15
 #: this removes the solver mismatch by construction.
 EXTRA_ITERATIONS = 2
 #: What a candidate's held-out gain is measured from (``Options.reference``).
-REFERENCES = ("median", "best", "base")
+REFERENCES = ("base", "best", "median")
 
 
 @dataclass(frozen=True)
@@ -424,23 +422,23 @@ def _null_cells(sims, frames, base: Extension, run: int, seed: int, vary: bool =
     return (out, model) if clean else out
 
 
-def reference(predictions: list, observed: list, data: _Data, how: str = "median") -> tuple[np.ndarray, int | None]:
-    """What gains on ``observed`` are measured from: (held-out per-frame losses, the index of
-    the prediction they are; None for the median). ``predictions``: model cells per episode of
-    the base rollout and of the base model's realisations. ``how``: ``"median"``, per frame the
-    median loss over the predictions (a typical base prediction: a candidate that is one more
-    realisation of the base model gains about as often as it loses against it); ``"best"``, the
-    prediction with the least mean loss; ``"base"``, the first prediction.
+def reference(predictions: list, observed: list, data: _Data, how: str) -> tuple[np.ndarray, int | None]:
+    """What gains on ``observed`` are measured from under ``Options.reference`` ``"best"`` or
+    ``"median"``: (held-out per-frame losses, the index of the prediction they are; None for
+    the median). ``predictions``: model cells per episode of the base rollout and of the base
+    model's realisations. ``how``: ``"median"``, per frame the median loss over the
+    predictions (a typical base prediction: a candidate that is one more realisation of the
+    base model gains about as often as it loses against it); ``"best"``, the prediction with
+    the least mean loss.
 
     A pour's chaos splits one model's realisations into distinct flows (README, "Discrepancy
     discovery": gains from the base model's predictions). Measured from the one base rollout,
     a candidate "gains" whenever it lands in another flow the recording happens to share, and
     on a null realisation in another flow than the base's any small change of the physics
     gains; measured from a typical prediction it gains only what its physics changes."""
-    if how not in REFERENCES:
-        raise ValueError(f"unknown reference {how!r}; known: {', '.join(REFERENCES)}")
-    held = [_held([cell_metrics(c, o)["loss"] for c, o in zip(cells, observed)], data)[0]
-            for cells in (predictions[:1] if how == "base" else predictions)]
+    if how not in ("best", "median"):
+        raise ValueError(f"unknown reference {how!r}; known: best, median")
+    held = [_held([cell_metrics(c, o)["loss"] for c, o in zip(cells, observed)], data)[0] for cells in predictions]
     if how == "median":
         return np.median(np.stack(held), axis=0), None
     k = int(np.argmin([h.mean() for h in held]))
@@ -555,15 +553,19 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     strata = _held_strata(data)
     held_null = [_held(ev.losses(base, cells), data)[0] for cells, _ in realisations]
     null_base = [float(nb.mean()) for nb in held_null]
-    # The gains' reference (``Options.reference``, :func:`reference`) over the base rollout and
-    # its realisations drawn without mask noise; on a null realisation, over the others.
-    # An observation candidate re-draws the base rollout, so its gain over that rollout is
-    # paired, free of the rollout's chaos: its reference stays the base rollout.
-    predictions = [ev.cells(base)] + ([model for _, model in realisations] if opt.reference != "base" else [])
-    held_ref, ref_index = reference(predictions, data.cells, data, opt.reference)
+    # The gains' reference (``Options.reference``, :func:`reference`): the base rollout, or the
+    # best / median over it and its realisations drawn without mask noise (on a null
+    # realisation, over the others). An observation candidate re-draws the base rollout, so its
+    # gain over that rollout is paired, free of the rollout's chaos: it keeps that reference.
+    predictions = [ev.cells(base)] + [model for _, model in realisations]
+    held_ref, ref_index = held_base, 0
+    if opt.reference != "base":
+        held_ref, ref_index = reference(predictions, data.cells, data, opt.reference)
     for run, (cells, _) in enumerate(realisations[: opt.null_runs]):     # the candidates' null
-        nb, _ = reference([c for i, c in enumerate(predictions) if i != run + 1], cells, data, opt.reference)
-        null_cells.append((cells, {opt.reference: nb, "base": held_null[run]}))
+        refs = {"base": held_null[run]}
+        if opt.reference != "base":
+            refs["other"] = reference([c for i, c in enumerate(predictions) if i != run + 1], cells, data, opt.reference)[0]
+        null_cells.append((cells, refs))
 
     def ref_of(name: str) -> str:
         return "base" if LIBRARY[name].observation else opt.reference
@@ -612,7 +614,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
             pool.fit([(c["name"], cells) for cells, _ in null_cells], FINE, base.base, data.fit)
         out, c["null_fitted"] = [], []
         for cells, refs in null_cells:
-            nb = refs[ref_of(c["name"])]
+            nb = refs["base" if ref_of(c["name"]) == "base" else "other"]
             nd = _Data(cells, data.fit, data.held, data.blocks)
             ext, _, _ = fit_candidate(c["name"], lambda e: ev.fit_loss(e, nd), base.base, FINE, ev.upper(c["name"]))
             ne, _ = _held(ev.losses(ext, cells), data)
@@ -650,7 +652,8 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         "learned": learned,
         "tracker_corrections": tracker,
         "calibration": calib,
-        "reference": {"kind": opt.reference, "predictions": len(predictions), "heldout_loss": float(held_ref.mean()),
+        "reference": {"kind": opt.reference, "predictions": 1 if opt.reference == "base" else len(predictions),
+                      "heldout_loss": float(held_ref.mean()),
                       **({} if ref_index is None else {"which": "base" if ref_index == 0 else f"realisation {ref_index - 1}"})},
         "null": {"runs": opt.null_runs, "level_runs": len(null_base), "base_heldout_loss": null_base, "factor": NULL_FACTOR, "margin": NULL_MARGIN,
                  "residual_factor": RESIDUAL_FACTOR, "residual_real": residual_real},
