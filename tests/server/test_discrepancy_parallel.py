@@ -65,6 +65,28 @@ def test_two_worker_processes_give_the_serial_report(tmp_path, monkeypatch):
     assert parallel["options"]["jobs"] == 2 and parallel["evaluations"] >= serial["evaluations"]
 
 
+def test_ensemble_gains_in_workers_give_the_serial_report(tmp_path, monkeypatch):
+    """``Options.ensemble``: the best candidates' gains, on the recording and on the null, from
+    draws of each prediction; the workers draw them (an offset's re-draws with their rollout)."""
+    path = record("time_offset", tmp_path)
+    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, level_runs=2, bootstrap=200, ensemble=2)
+    monkeypatch.setattr(analysis, "declare", _null_fit_every_candidate)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        serial = analyse([path], options=Options(**opts))
+        parallel = analyse([path], options=Options(**opts, jobs=2))
+    finally:
+        torch.set_num_threads(threads)
+    assert _comparable(parallel) == _comparable(serial)
+    for c in serial["candidates"]:
+        assert c["reference"] == "ensemble" and c["heldout_gain"]["draws"] == 2
+        assert c["single_rollout_gain"]["mean"] != c["heldout_gain"]["mean"]
+        assert len(c["null_gains"]) == 1
+    gains = [c["heldout_gain"]["mean"] for c in serial["candidates"]]
+    assert gains == sorted(gains, reverse=True)          # ranked by the ensemble gain
+
+
 def test_a_worker_killed_mid_analysis_stops_it_with_a_clear_error(tmp_path):
     from liquidtwin.procs import WorkerDied
     path = record("none", tmp_path)

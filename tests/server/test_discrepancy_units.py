@@ -237,6 +237,57 @@ def test_options_are_checked():
     for bad in (-1, 65, True, 2.0):
         with pytest.raises(ValueError, match="level_runs"):
             Options(level_runs=bad)
+    for bad in (-1, 1, 17, True, 2.0):       # one draw is no ensemble
+        with pytest.raises(ValueError, match="ensemble"):
+            Options(ensemble=bad)
+    assert Options().ensemble == 0 and Options(ensemble=4).ensemble == 4
+
+
+def test_a_draw_is_a_realisation_of_the_prediction_not_part_of_the_model(tmp_path):
+    ext = Extension("drag", {"c": 2.0}, {"lambda_v": 50.0})
+    d = ext.drawn(3)
+    assert d.draw == 3 and d.with_params(c=1.0).draw == 3 and ext.draw == 0
+    assert d != ext and d.drawn(0) == ext
+    assert "draw" not in d.as_dict()
+    assert load_model(save_model(d, tmp_path / "m.json")) == ext        # a model file holds no draw
+    for bad in (-1, True, 1.5):
+        with pytest.raises(ValueError, match="draw"):
+            Extension("none", {}, {}, bad)
+
+
+def test_ensemble_draws_are_cached_apart_and_offsets_re_draw_their_draws_rollout():
+    from types import SimpleNamespace
+
+    from liquidtwin.discrepancy.analysis import _Evaluator, draw_ensembles
+
+    class Sim:
+        ep = SimpleNamespace(masks=np.zeros((2, 8, 8), bool))
+        rolled: list = []
+
+        def rollout(self, ext):
+            Sim.rolled.append((ext.name, ext.draw))
+            return ("trajectory", ext.name, ext.draw)
+
+        def render(self, traj, frames, ext):
+            m = np.zeros((2, 8, 8), bool)
+            m[:, : 4 * min(traj[2], 2), : 4 if ext.time_offset_s == 0 else 8] = True   # by draw and offset
+            return m
+
+    ev = _Evaluator([Sim()])
+    base = Extension("none", {}, {"lambda_v": 50.0})
+    offset = Extension("time_offset", {"s": 0.1}, base.base)
+    drag = Extension("drag", {"c": 2.0}, base.base)
+    draw_ensembles(None, ev, [base, offset, drag], 3)
+    # one rollout per draw of the base physics (the offset re-draws it) and per draw of the drag
+    assert sorted(Sim.rolled) == sorted([("none", k) for k in (1, 2, 3)] + [("drag", k) for k in (1, 2, 3)])
+    assert all(ev.has(e.drawn(k)) for e in (base, offset, drag) for k in (1, 2, 3))
+    assert not ev.has(base) and not ev.has(offset)            # draw 0 is the analysis's own rollout
+    cells = [ev.cells(base.drawn(k))[0] for k in (1, 2, 3)]
+    assert not np.array_equal(cells[0], cells[1])             # the draws are cached apart
+    assert not np.array_equal(ev.cells(offset.drawn(1))[0], cells[0])
+    n = len(Sim.rolled)
+    draw_ensembles(None, ev, [base, offset, drag], 3)         # all cached: nothing re-simulated
+    assert len(Sim.rolled) == n
 
 
 def test_the_cli_refuses_bad_options_clearly(tmp_path, capsys):
@@ -252,7 +303,7 @@ def test_the_analysis_model_is_converged_further_and_driven_by_smoothed_poses(tm
     """Two solver iterations above the recording's stated count, fill settled with them; the
     poses smoothed (same times, jitter gone from their differences), raw with smoothing 0."""
     from liquidtwin.discrepancy.episode import load_episode
-    from liquidtwin.discrepancy.rollout import Simulator
+    from liquidtwin.discrepancy.rollout import DRAW_JITTER, Simulator
     from liquidtwin.generate import generate
 
     path = tmp_path / "dump.mcap"
@@ -276,6 +327,11 @@ def test_the_analysis_model_is_converged_further_and_driven_by_smoothed_poses(tm
     steady = Simulator(smooth)
     same = steady.rollout(Extension(), steps=20, poses=smooth.poses)
     assert all(np.array_equal(x, y) for x, y in zip(same.x, steady.rollout(Extension(), steps=20).x))
+    # an ensemble's draws: each its own jitter of the initial velocities, the same every time
+    d1, d2 = (steady.rollout(Extension().drawn(k), steps=20) for k in (1, 2))
+    assert all(np.array_equal(x, y) for x, y in zip(d1.x, steady.rollout(Extension().drawn(1), steps=20).x))
+    moved1 = np.abs(d1.x[1] - same.x[1]).max()
+    assert 0 < moved1 < 10 * DRAW_JITTER * steady.dt and np.abs(d2.x[1] - d1.x[1]).max() > 0
     moved = steady.rollout(Extension(), steps=20, poses=a)
     assert np.abs(moved.poses - same.poses).max() > 1e-5 and np.abs(moved.x[-1] - same.x[-1]).max() > 0
 

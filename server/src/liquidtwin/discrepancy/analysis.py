@@ -122,7 +122,12 @@ class Options:
     calibration, every candidate) start from the fill with this initial-velocity jitter, m/s,
     one fixed draw for all of them (``rollout.Simulator``; 0: the settled fill as it is). The
     null realisations start jittered (:data:`NULL_JITTER`); an unjittered prediction is a
-    realisation of another kind (README, "Discrepancy discovery": the base rollout as an outlier)."""
+    realisation of another kind (README, "Discrepancy discovery": the base rollout as an outlier);
+    ensemble: K ≥ 2 measures the held-out gains of the best ``top`` candidates, on the recording
+    and on the null realisations, as the difference of the mean losses of K draws of the base's
+    prediction and K of the candidate's (``Extension.draw``: initial velocities jittered, the
+    recorded poses, the fitted parameters) instead of one rollout of each (:func:`ensemble_gain`;
+    0: off, the rule before). The fits themselves stay single rollouts."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -140,6 +145,7 @@ class Options:
     stratify: bool = True
     prediction_jitter: float = 0.0
     reference: str = "base"
+    ensemble: int = 0
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -160,6 +166,9 @@ class Options:
             raise ValueError(f"unknown reference {self.reference!r}; known: {', '.join(REFERENCES)}")
         if not 0 <= self.prediction_jitter <= 0.1:
             raise ValueError(f"prediction_jitter must be in [0, 0.1] m/s, got {self.prediction_jitter!r}")
+        if isinstance(self.ensemble, bool) or not isinstance(self.ensemble, int) or not 0 <= self.ensemble <= 16 \
+                or self.ensemble == 1:
+            raise ValueError(f"ensemble must be 0 (off) or a whole number in [2, 16], got {self.ensemble!r}")
         if not 0 <= self.pose_smoothing_s <= 1:
             raise ValueError(f"pose_smoothing_s must be in [0, 1] s, got {self.pose_smoothing_s!r}")
 
@@ -176,7 +185,7 @@ class _Data:
 
 
 def _key(ext: Extension) -> tuple:
-    return (ext.name, tuple(sorted(ext.params.items())), tuple(sorted(ext.base.items())))
+    return (ext.name, tuple(sorted(ext.params.items())), tuple(sorted(ext.base.items())), ext.draw)
 
 
 class _Evaluator:
@@ -237,7 +246,7 @@ class _Evaluator:
         """Every episode's rollout of ``ext``'s physics. Only rollouts of the base physics are
         kept (the last few): observation candidates re-draw them; a physics candidate's rollout
         is drawn once, its cells cached, and dropped (a full-size pour's is ~40 MB)."""
-        phys = ext if not LIBRARY.get(ext.name) or not LIBRARY[ext.name].observation else Extension("none", {}, ext.base)
+        phys = ext if not LIBRARY.get(ext.name) or not LIBRARY[ext.name].observation else Extension("none", {}, ext.base, ext.draw)
         k = _key(phys)
         if k in self._traj:
             return self._traj[k]
@@ -445,6 +454,28 @@ def reference(predictions: list, observed: list, data: _Data, how: str) -> tuple
     return held[k], k
 
 
+def draw_ensembles(pool, ev, exts: list, draws: int) -> None:
+    """Draws 1 … ``draws`` of every extension of ``exts`` into ``ev``'s cache (``pool``: in the
+    workers). Time and camera offsets re-draw the base physics' draw, so each draw's observation
+    candidates go in one task with it; every other extension's draw is a task of its own."""
+    groups = []
+    for k in range(1, draws + 1):
+        obs = [e.drawn(k) for e in exts if LIBRARY.get(e.name) and LIBRARY[e.name].observation]
+        phys = [e.drawn(k) for e in exts if not (LIBRARY.get(e.name) and LIBRARY[e.name].observation)]
+        if obs:
+            lead = Extension("none", {}, obs[0].base, k)
+            phys = [e for e in phys if _key(e) != _key(lead)]
+            groups.append([lead] + obs)
+        groups += [[e] for e in phys]
+    groups = [[e for e in g if not ev.has(e)] for g in groups]
+    groups = [g for g in groups if g]
+    if pool is not None:
+        pool.draw_groups(groups)
+    for g in groups:
+        for e in g:
+            ev.cells(e)
+
+
 def _fit_times(ep, ts, fit: np.ndarray, frames) -> np.ndarray:
     """Which correction samples (times ``ts``) fall on this episode's fitting frames."""
     return np.isin(np.round(ts * 1e6), np.round(ep.frame_t[frames][fit] * 1e6))
@@ -605,6 +636,22 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         bar.set_postfix_str(f"refine {ranked[i]['name']}")
         ranked[i] = scored(ranked[i]["name"], FINE)
     ranked.sort(key=lambda c: -c["heldout_gain"]["mean"])
+    ens = opt.ensemble
+
+    def ens_held(ext: Extension, cells) -> np.ndarray:
+        """Held-out per-frame losses on ``cells``, averaged over the ensemble's draws of ``ext``."""
+        return np.mean([_held(ev.losses(ext.drawn(k), cells), data)[0] for k in range(1, ens + 1)], axis=0)
+
+    if ens:     # the best few's gains from ensembles of draws (Options.ensemble)
+        top = ranked[: opt.top]
+        draw_ensembles(pool, ev, [base] + [c["_ext"] for c in top], ens)
+        base_ens = ens_held(base, data.cells)
+        for c in top:
+            gain = base_ens - ens_held(c["_ext"], data.cells)
+            c["single_rollout_gain"], c["reference"] = c["heldout_gain"], "ensemble"
+            c["heldout_gain"] = {"mean": float(gain.mean()), "ci95": interval(gain, blocks, rng, opt.bootstrap, strata),
+                                 "unit": "coarse loss", "draws": ens}
+        ranked[: opt.top] = sorted(top, key=lambda c: -c["heldout_gain"]["mean"])
     timing["fit"] = time.perf_counter() - t
 
     # 5. the best few against their null, in ranked order, until one is declared (``declare``)
@@ -612,13 +659,19 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     def null_gains(c):
         if pool is not None:
             pool.fit([(c["name"], cells) for cells, _ in null_cells], FINE, base.base, data.fit)
-        out, c["null_fitted"] = [], []
-        for cells, refs in null_cells:
-            nb = refs["base" if ref_of(c["name"]) == "base" else "other"]
+        fitted = []
+        for cells, _ in null_cells:
             nd = _Data(cells, data.fit, data.held, data.blocks)
-            ext, _, _ = fit_candidate(c["name"], lambda e: ev.fit_loss(e, nd), base.base, FINE, ev.upper(c["name"]))
-            ne, _ = _held(ev.losses(ext, cells), data)
-            out.append(float((nb - ne).mean()))
+            fitted.append(fit_candidate(c["name"], lambda e: ev.fit_loss(e, nd), base.base, FINE, ev.upper(c["name"]))[0])
+        if c.get("reference") == "ensemble":
+            draw_ensembles(pool, ev, fitted, ens)
+        out, c["null_fitted"] = [], []
+        for (cells, refs), ext in zip(null_cells, fitted):
+            if c.get("reference") == "ensemble":    # as its gain on the recording: ensembles of both
+                gain = ens_held(base, cells) - ens_held(ext, cells)
+            else:
+                gain = refs["base" if ref_of(c["name"]) == "base" else "other"] - _held(ev.losses(ext, cells), data)[0]
+            out.append(float(gain.mean()))
             c["null_fitted"].append(main_value(ext))   # what the candidate fits where nothing is hidden
         return out
 

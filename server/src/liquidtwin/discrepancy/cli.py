@@ -31,6 +31,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "the default), the one of the base model's rollout and realisations that misses least (best), "
                         "or per frame their median loss (median); time and camera offsets re-draw the base rollout and "
                         "are always measured from it. best and median were measured at stop 61 and are off (README)")
+    p.add_argument("--ensemble", type=int, default=0, metavar="K",
+                   help="measure the best --top candidates' held-out gains, on the recording and on the null "
+                        "realisations, from K jittered draws of the base's and of each candidate's prediction "
+                        "instead of one rollout each (K rollouts per model; default 0: off)")
     p.add_argument("--top", type=int, default=3, metavar="K", help="best candidates checked against the null (default 3)")
     p.add_argument("--no-calibrate", action="store_true", help="keep the base model's lambda_v, lambda_c as stated")
     p.add_argument("--no-stratify", action="store_true",
@@ -58,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         opt = Options(camera=args.camera, candidates=tuple(args.candidates), block_s=args.block,
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
                       stratify=not args.no_stratify, prediction_jitter=args.prediction_jitter,
-                      reference=args.reference,
+                      reference=args.reference, ensemble=args.ensemble,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),
                                                             ("level_runs", args.level_runs)) if v is not None})

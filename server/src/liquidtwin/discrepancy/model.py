@@ -48,11 +48,15 @@ OBSERVATION = ("time_offset", "camera_offset")
 class Extension:
     """``name``: a candidate, ``"none"`` (the calibrated base) or ``"learned"``; ``params``:
     the candidate's fitted parameters (floats); ``base``: calibrated fluid parameters
-    (``lambda_v``, ``lambda_c``) replacing the model's defaults."""
+    (``lambda_v``, ``lambda_c``) replacing the model's defaults; ``draw``: which realisation of
+    the extension's prediction a rollout is (0: from the settled fill as it is; k ≥ 1: its
+    initial velocities jittered by draw k, ``rollout.DRAW_JITTER``), for the ensemble gains
+    (``analysis.Options.ensemble``). Not part of the model: model files do not hold it."""
 
     name: str = "none"
     params: dict = field(default_factory=dict)
     base: dict = field(default_factory=dict)
+    draw: int = 0
 
     def __post_init__(self):
         if self.name not in CANDIDATES + ("none", "learned"):
@@ -60,9 +64,15 @@ class Extension:
         for k, v in list(self.params.items()) + list(self.base.items()):
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ValueError(f"extension {self.name}: parameter {k} must be a finite number, got {v!r}")
+        if isinstance(self.draw, bool) or not isinstance(self.draw, int) or self.draw < 0:
+            raise ValueError(f"extension {self.name}: draw must be a whole number >= 0, got {self.draw!r}")
 
     def with_params(self, **params) -> "Extension":
-        return Extension(self.name, {**self.params, **{k: float(v) for k, v in params.items()}}, self.base)
+        return Extension(self.name, {**self.params, **{k: float(v) for k, v in params.items()}}, self.base, self.draw)
+
+    def drawn(self, draw: int) -> "Extension":
+        """The same extension, realisation ``draw`` of its prediction."""
+        return dataclasses.replace(self, draw=int(draw))
 
     def as_dict(self) -> dict:
         return {"version": MODEL_FILE_VERSION, "name": self.name, "params": dict(self.params), "base": dict(self.base)}

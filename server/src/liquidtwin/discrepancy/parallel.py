@@ -50,7 +50,8 @@ def _init(eps, frames, extra_iterations, jitter) -> None:
 
 
 def _run(task) -> tuple:
-    """One task in a worker: ("cells", ext, seed) draws one extension; ("fit", name, rounds,
+    """One task in a worker: ("cells", ext, seed) draws one extension; ("group", exts, seed)
+    draws several in order (an observation candidate's re-draws after their rollout); ("fit", name, rounds,
     base, cells, fit, seed) runs ``fit_candidate`` against observed ``cells`` on the ``fit``
     frames; ("null", run, seed_value, base, vary, seed) draws one null realisation. ``seed``: cache
     entries to start from. Returns (result, the entries computed here)."""
@@ -62,6 +63,9 @@ def _run(task) -> tuple:
     result = None
     if kind == "cells":
         ev.cells(args[0])
+    elif kind == "group":
+        for ext in args[0]:
+            ev.cells(ext)
     elif kind == "fit":
         name, rounds, base, cells, fit = args
         data = _Data(cells, fit, None, None)
@@ -100,6 +104,10 @@ class Workers:
     def draw(self, exts) -> None:
         """Evaluate every extension of ``exts`` (into the cache)."""
         self._start([("cells", e, {}) for e in exts])()
+
+    def draw_groups(self, groups) -> None:
+        """Evaluate every list of extensions of ``groups``, each list in order in one worker."""
+        self._start([("group", list(g), {}) for g in groups])()
 
     def fit(self, searches, rounds: int, base: dict, fit: list) -> None:
         """Run the search of every (candidate name, observed cells) of ``searches`` on the

@@ -44,6 +44,11 @@ class Trajectory:
         return int(np.clip(round(t / self.dt), 0, len(self.x) - 1))
 
 
+#: Initial-velocity jitter of an ensemble's draws, m/s (the null realisations' ``NULL_JITTER``):
+#: far below anything a camera sees, enough to send a pour into another of its flows.
+DRAW_JITTER = 1e-3
+
+
 class Simulator:
     """The episode's scene, built once; rollouts of any extension of its model.
     ``extra_iterations``: solver iterations added to the recording's stated count (the fill
@@ -51,7 +56,7 @@ class Simulator:
     ``jitter``: rollouts from the fill start with this initial-velocity jitter, m/s, the same
     draw every time (``Options.prediction_jitter``)."""
 
-    #: Seed of the prediction jitter's one draw.
+    #: Seed of the prediction jitter's one draw; draw k of an ensemble uses this + k.
     JITTER_SEED = 12345
 
     def __init__(self, ep: Episode, *, progress: bool = False, extra_iterations: int = 0, jitter: float = 0.0):
@@ -114,7 +119,10 @@ class Simulator:
         model = apply_physics(ext, self.model, self.sites)
         if initial is None:
             x0, v0 = self.initial(ext.fill_scale)
-            if self.jitter > 0:
+            if ext.draw > 0:                # realisation k of the prediction (Extension.draw)
+                g = torch.Generator().manual_seed(self.JITTER_SEED + ext.draw)
+                v0 = v0 + DRAW_JITTER * torch.randn(v0.shape, generator=g, dtype=v0.dtype)
+            elif self.jitter > 0:
                 g = torch.Generator().manual_seed(self.JITTER_SEED)
                 v0 = v0 + self.jitter * torch.randn(v0.shape, generator=g, dtype=v0.dtype)
         else:
