@@ -3,7 +3,13 @@ with the current scoring, without re-running any analysis: the ``tied`` range of
 candidate is recomputed from its saved trace, so results from before the range existed are
 scored as a fresh run would be.
 
-    .venv/bin/python bench/discrepancy_rescore.py bench/results/discrepancy_quick_seed0.json [more.json …]
+    .venv/bin/python bench/discrepancy_rescore.py bench/results/discrepancy_quick_seed0.json [more.json …] [--signed-null]
+
+``--signed-null`` re-decides each analysis from its saved ranking, gains and null gains with
+the null bar taken from the largest *signed* null gain whatever the residual (the analysis
+takes the largest magnitude when the residual is not real, unless the gains are measured from
+the best prediction: ``analysis.declare``). A candidate the rule would check but whose null
+gains the run did not compute (it was not checked there) leaves the decision open ("?").
 """
 
 from __future__ import annotations
@@ -13,9 +19,31 @@ import json
 from pathlib import Path
 
 
+#: How many of the best candidates the analysis checks against the null (``Options.top``).
+TOP = 3
+
+
+def _signed_decision(top: list) -> str:
+    """The first of ``top`` (ranked by held-out gain) whose interval is above zero and whose gain
+    beats NULL_FACTOR × its largest signed null gain + NULL_MARGIN; "?" where such a candidate
+    was not checked against the null in the run."""
+    from liquidtwin.discrepancy.analysis import NULL_FACTOR, NULL_MARGIN
+    for c in top:
+        g = c["heldout_gain"]
+        if not (g["ci95"][0] > 0 and g["mean"] > NULL_MARGIN):
+            continue
+        if not c.get("null_gains"):
+            return "?"
+        if g["mean"] > max(NULL_FACTOR * max(c["null_gains"]), 0.0) + NULL_MARGIN:
+            return c["name"]
+    return "none"
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("results", nargs="+", type=Path, help="results.json files of the blind benchmark")
+    p.add_argument("--signed-null", action="store_true",
+                   help="re-decide with the largest signed null gain as the bar (module doc)")
     args = p.parse_args()
     from liquidtwin.discrepancy.candidates import tied_range
     from liquidtwin.evaluate.discrepancy import format_table, identified, table
@@ -24,12 +52,18 @@ def main() -> None:
         doc = json.loads(path.read_text())
         rows = doc["rows"]
         for row in rows:
+            if args.signed_null:
+                was = row["named"]
+                row["named"] = _signed_decision(row["candidates"][: TOP])
+                row["correct"] = row["named"] == row["planted"]
+                print(f"{row['case']['name']}: planted {row['planted']}, named {was}, signed-null rule {row['named']}")
             for c in row["candidates"]:
                 if "tied" not in c and c.get("trace"):
                     c["tied"] = tied_range(c["name"], [(t["params"], t["fit_loss"]) for t in c["trace"]])
-            if row["correct"] and row["planted"] != "none":
+            if row["correct"] and row["planted"] != "none" and row["named"] != "?":
                 row["identified"] = identified(next(c for c in row["candidates"] if c["name"] == row["named"]))
-        note = f"{path}: re-scored ({len(rows)} analyses, base seed {doc.get('base_seed')})"
+        rule = "; signed-null rule" if args.signed_null else ""
+        note = f"{path}{rule}: re-scored ({len(rows)} analyses, base seed {doc.get('base_seed')})"
         print(format_table(table(rows), note), "\n")
 
 
