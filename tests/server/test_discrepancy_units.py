@@ -241,6 +241,36 @@ def test_options_are_checked():
         with pytest.raises(ValueError, match="ensemble"):
             Options(ensemble=bad)
     assert Options().ensemble == 0 and Options(ensemble=4).ensemble == 4
+    for bad in (-1, 1, 17, True, 2.0):
+        with pytest.raises(ValueError, match="calibration_draws"):
+            Options(calibration_draws=bad)
+
+
+def test_calibration_on_draws_takes_the_trial_with_the_least_mean_loss_over_its_draws():
+    """Each trial's one rollout is noisy; the mean over its draws is what is compared."""
+    from types import SimpleNamespace
+
+    from liquidtwin.discrepancy.analysis import CALIBRATION_FACTORS, calibrate
+
+    sims = [SimpleNamespace(model=SimpleNamespace(params=SimpleNamespace(lambda_v=60.0, lambda_c=0.1)))]
+    seen = []
+
+    class Ev:
+        def fit_loss(self, ext, data):
+            seen.append(ext.draw)
+            f = ext.base.get("lambda_v", 60.0) / 60.0
+            smooth = (f - 1.1) ** 2                      # the mean over draws is lowest at 1.1 ×
+            # draw 0 is lowest at 0.75 ×; the draws' noise (±0.05 about 0) averages out
+            noise = {0: -0.2 * (f == 0.75), 1: 0.05, 2: -0.05, 3: 0.0}[ext.draw] * (f != 1.1)
+            return smooth + noise + 0.01 * ext.base.get("lambda_c", 0.1)
+
+    one, _ = calibrate(sims, Ev(), None, None)
+    assert one.base["lambda_v"] == 60.0 * 0.75 and set(seen) == {0}
+    seen.clear()
+    mean, calib = calibrate(sims, Ev(), None, None, draws=3)
+    assert mean.base["lambda_v"] == pytest.approx(60.0 * 1.1) and set(seen) == {1, 2, 3}
+    assert len(calib) == 2 * len(CALIBRATION_FACTORS) and mean.draw == 0
+    assert mean.base["lambda_c"] == pytest.approx(0.1 * min(CALIBRATION_FACTORS))      # λ_c: least loss
 
 
 def test_a_draw_is_a_realisation_of_the_prediction_not_part_of_the_model(tmp_path):

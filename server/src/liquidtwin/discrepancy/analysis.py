@@ -128,7 +128,9 @@ class Options:
     prediction and K of the candidate's (``Extension.draw``: initial velocities jittered, the
     recorded poses, the fitted parameters) instead of one rollout of each (:func:`draw_ensembles`;
     0: off, the rule before). The fits themselves stay single rollouts; measured at stop 62 and
-    off (README, "Gains from ensembles of draws")."""
+    off (README, "Gains from ensembles of draws"); calibration_draws: K ≥ 2 calibrates λ_v, λ_c
+    by the mean fitting loss of K draws of each trial's prediction (:func:`calibrate`; 0: one
+    rollout each, the rule before)."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -147,6 +149,7 @@ class Options:
     prediction_jitter: float = 0.0
     reference: str = "base"
     ensemble: int = 0
+    calibration_draws: int = 0
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -170,6 +173,10 @@ class Options:
         if isinstance(self.ensemble, bool) or not isinstance(self.ensemble, int) or not 0 <= self.ensemble <= 16 \
                 or self.ensemble == 1:
             raise ValueError(f"ensemble must be 0 (off) or a whole number in [2, 16], got {self.ensemble!r}")
+        if isinstance(self.calibration_draws, bool) or not isinstance(self.calibration_draws, int) \
+                or not 0 <= self.calibration_draws <= 16 or self.calibration_draws == 1:
+            raise ValueError(f"calibration_draws must be 0 (off) or a whole number in [2, 16], "
+                             f"got {self.calibration_draws!r}")
         if not 0 <= self.pose_smoothing_s <= 1:
             raise ValueError(f"pose_smoothing_s must be in [0, 1] s, got {self.pose_smoothing_s!r}")
 
@@ -530,19 +537,31 @@ def analyse(sources, out=None, *, options: Options | None = None, progress: bool
     return report
 
 
-def calibrate(sims, ev, pool, data) -> tuple[Extension, list]:
+def calibrate(sims, ev, pool, data, draws: int = 0) -> tuple[Extension, list]:
     """The base model's λ_v, then λ_c, searched at :data:`CALIBRATION_FACTORS` × the stated
     values on the fitting frames (``pool``: workers that draw each search's trials at once).
+    ``draws``: K ≥ 2 scores the stated base and every trial by the mean fitting loss of K draws
+    of its prediction (``Extension.draw``) instead of its one rollout (``Options.calibration_draws``);
+    the calibrated base is the trial itself, whose one rollout the analysis goes on with.
     Returns (the calibrated base, [{base, fit_loss}, …] of every trial)."""
     base, calib = Extension(), []
     defaults = {"lambda_v": float(sims[0].model.params.lambda_v), "lambda_c": float(sims[0].model.params.lambda_c)}
-    best = ev.fit_loss(base, data)
+
+    def drawn(exts: list) -> list:
+        return [e.drawn(k) for e in exts for k in range(1, draws + 1)] if draws else list(exts)
+
+    def loss_of(ext: Extension) -> float:
+        return float(np.mean([ev.fit_loss(e, data) for e in drawn([ext])]))
+
+    first = drawn([base]) if draws else []
     for key in ("lambda_v", "lambda_c"):
         trials = [Extension("none", {}, {**base.base, key: defaults[key] * f}) for f in CALIBRATION_FACTORS]
         if pool is not None:
-            pool.draw(trials)
+            pool.draw(first + drawn(trials))
+        if key == "lambda_v":
+            best, first = loss_of(base), []
         for trial in trials:
-            loss = ev.fit_loss(trial, data)
+            loss = loss_of(trial)
             calib.append({"base": trial.base, "fit_loss": loss})
             if loss < best:
                 best, base = loss, trial
@@ -555,7 +574,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
 
     # 1. calibrate the base
     t = time.perf_counter()
-    base, calib = calibrate(sims, ev, pool, data) if opt.calibrate else (Extension(), [])
+    base, calib = calibrate(sims, ev, pool, data, opt.calibration_draws) if opt.calibrate else (Extension(), [])
     timing["calibrate"] = time.perf_counter() - t
 
     # The null realisations (3) need only the calibrated base: the workers draw them while

@@ -35,6 +35,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="measure the best --top candidates' held-out gains, on the recording and on the null "
                         "realisations, from K jittered draws of the base's and of each candidate's prediction "
                         "instead of one rollout each (K rollouts per model; default 0: off)")
+    p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
+                   help="calibrate lambda_v, lambda_c by the mean fitting loss of K jittered draws of each trial's "
+                        "prediction instead of its one rollout (K rollouts per trial; default 0: off)")
     p.add_argument("--top", type=int, default=3, metavar="K", help="best candidates checked against the null (default 3)")
     p.add_argument("--no-calibrate", action="store_true", help="keep the base model's lambda_v, lambda_c as stated")
     p.add_argument("--no-stratify", action="store_true",
@@ -63,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
                       stratify=not args.no_stratify, prediction_jitter=args.prediction_jitter,
                       reference=args.reference, ensemble=args.ensemble,
+                      calibration_draws=args.calibration_draws,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),
                                                             ("level_runs", args.level_runs)) if v is not None})
