@@ -196,6 +196,11 @@ def _key(ext: Extension) -> tuple:
     return (ext.name, tuple(sorted(ext.params.items())), tuple(sorted(ext.base.items())), ext.draw)
 
 
+def _observation(ext: Extension) -> bool:
+    """Whether ``ext`` changes only what the camera shows (a re-draw of the base physics)."""
+    return bool(LIBRARY.get(ext.name)) and LIBRARY[ext.name].observation
+
+
 class _Evaluator:
     """Renders extensions on every episode once (cached: coarse cells + pixel IOU vs the
     recording) and scores them against any set of observed cells."""
@@ -254,7 +259,7 @@ class _Evaluator:
         """Every episode's rollout of ``ext``'s physics. Only rollouts of the base physics are
         kept (the last few): observation candidates re-draw them; a physics candidate's rollout
         is drawn once, its cells cached, and dropped (a full-size pour's is ~40 MB)."""
-        phys = ext if not LIBRARY.get(ext.name) or not LIBRARY[ext.name].observation else Extension("none", {}, ext.base, ext.draw)
+        phys = Extension("none", {}, ext.base, ext.draw) if _observation(ext) else ext
         k = _key(phys)
         if k in self._traj:
             return self._traj[k]
@@ -468,8 +473,8 @@ def draw_ensembles(pool, ev, exts: list, draws: int) -> None:
     candidates go in one task with it; every other extension's draw is a task of its own."""
     groups = []
     for k in range(1, draws + 1):
-        obs = [e.drawn(k) for e in exts if LIBRARY.get(e.name) and LIBRARY[e.name].observation]
-        phys = [e.drawn(k) for e in exts if not (LIBRARY.get(e.name) and LIBRARY[e.name].observation)]
+        obs = [e.drawn(k) for e in exts if _observation(e)]
+        phys = [e.drawn(k) for e in exts if not _observation(e)]
         if obs:
             lead = Extension("none", {}, obs[0].base, k)
             phys = [e for e in phys if _key(e) != _key(lead)]
