@@ -19,7 +19,8 @@ out, from the same settled fill with ``--realisations`` initial-velocity jitters
 
 Each is scored with the analysis's per-frame loss on the held-out frames, averaged over the
 realisations, and compared with ``base`` by the analysis's interval (block bootstrap,
-stratified). A gain whose interval reaches zero for ``perfect`` says the recording does not
+stratified); and with the energy score of its realisations (``energy``: that mean less half the
+mean loss between two of them, ``analysis.ensemble_losses``, ``Options.score``). A gain whose interval reaches zero for ``perfect`` says the recording does not
 show the effect through this loss: no candidate can be named on it by a held-out gain. The
 camera offset's ``effect`` is not built (the world's offset also shifts the camera, which the
 candidate does not model); its ``perfect`` draws the world's λ with the camera the world filmed
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 import math
 import subprocess
@@ -89,27 +91,32 @@ def oracle(rec: Path, realisations: int) -> dict:
         finally:
             sim.ep = stated
 
-    def _held_losses(ext) -> np.ndarray:
-        out = []
+    def _held_losses(ext) -> tuple[np.ndarray, np.ndarray]:
+        """(realisations, held-out frames) losses, and (held-out frames,) energy scores."""
+        out, drawn = [], []
         for k in range(realisations):
             x0, v0 = sim.initial(ext.fill_scale)
             gen = torch.Generator().manual_seed(1000 + k)
             traj = sim.rollout(ext, initial=(x0, v0 + NULL_JITTER * torch.randn(v0.shape, generator=gen)))
-            cells = coarse(sim.render(traj, f, ext=ext))
-            out.append(_held([cell_metrics(cells, data.cells[0])["loss"]], data)[0])
-        return np.stack(out)
+            drawn.append(coarse(sim.render(traj, f, ext=ext)))
+            out.append(_held([cell_metrics(drawn[-1], data.cells[0])["loss"]], data)[0])
+        spread = np.mean([cell_metrics(drawn[a], drawn[b])["loss"] for a, b in
+                          itertools.combinations(range(realisations), 2)], axis=0)
+        return np.stack(out), np.stack(out).mean(0) - 0.5 * _held([spread], data)[0]
 
     models = {"base": Extension("none", {}, base.base), "effect": _planted(eff, base.base),
               "world": Extension("none", {}, world), "perfect": _planted(eff, world)}
-    losses, rows = {}, {}
+    losses, energy, rows = {}, {}, {}
     for name, ext in models.items():
         if ext is None and not (name == "perfect" and true_cam is not None):
             rows[name] = None
             continue
-        losses[name] = held(ext) if ext is not None else held(models["world"], true_cam)
+        losses[name], energy[name] = held(ext) if ext is not None else held(models["world"], true_cam)
         gain = losses["base"].mean(0) - losses[name].mean(0)
+        egain = energy["base"] - energy[name]
         rows[name] = {"heldout_loss": [float(x) for x in losses[name].mean(1)],
-                      "gain": float(gain.mean()), "ci95": interval(gain, blocks, rng, 2000, strata)}
+                      "gain": float(gain.mean()), "ci95": interval(gain, blocks, rng, 2000, strata),
+                      "energy": {"gain": float(egain.mean()), "ci95": interval(egain, blocks, rng, 2000, strata)}}
     return {"recording": rec.name, "planted": eff, "calibrated": base.base, "world": world,
             "realisations": realisations, "models": rows, "wall_s": round(time.perf_counter() - t0, 1)}
 
@@ -133,7 +140,9 @@ def main() -> None:
         r["named"] = named.get(rec.stem)
         rows.append(r)
         eff = r["planted"]
-        cells = "  ".join(f"{k} —" if m is None else f"{k} {m['gain']:+.3f} [{m['ci95'][0]:+.3f}, {m['ci95'][1]:+.3f}]"
+        cells = "  ".join(f"{k} —" if m is None else
+                          f"{k} {m['gain']:+.3f} [{m['ci95'][0]:+.3f}, {m['ci95'][1]:+.3f}] (energy "
+                          f"{m['energy']['gain']:+.3f} [{m['energy']['ci95'][0]:+.3f}, {m['energy']['ci95'][1]:+.3f}])"
                           for k, m in r["models"].items() if k != "base")
         print(f"  planted {eff['name'] if eff else 'none'} {eff['value'] if eff else ''}, named {r['named']}: {cells}",
               flush=True)

@@ -65,11 +65,14 @@ def test_two_worker_processes_give_the_serial_report(tmp_path, monkeypatch):
     assert parallel["options"]["jobs"] == 2 and parallel["evaluations"] >= serial["evaluations"]
 
 
-def test_ensemble_gains_in_workers_give_the_serial_report(tmp_path, monkeypatch):
+@pytest.mark.parametrize("score", ["distance", "energy"])
+def test_ensemble_gains_in_workers_give_the_serial_report(tmp_path, monkeypatch, score):
     """``Options.ensemble``: the best candidates' gains, on the recording and on the null, from
-    draws of each prediction; the workers draw them (an offset's re-draws with their rollout)."""
+    draws of each prediction; the workers draw them (an offset's re-draws with their rollout).
+    ``Options.score`` "energy" scores the same draws (the spread term is this process's)."""
     path = record("time_offset", tmp_path)
-    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, level_runs=2, bootstrap=200, ensemble=2)
+    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, level_runs=2, bootstrap=200, ensemble=2,
+                score=score)
     monkeypatch.setattr(analysis, "declare", _null_fit_every_candidate)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -81,6 +84,7 @@ def test_ensemble_gains_in_workers_give_the_serial_report(tmp_path, monkeypatch)
     assert _comparable(parallel) == _comparable(serial)
     for c in serial["candidates"]:
         assert c["reference"] == "ensemble" and c["heldout_gain"]["draws"] == 2
+        assert c["heldout_gain"]["score"] == score
         assert len(c["null_gains"]) == 1
     assert any(c["single_rollout_gain"]["mean"] != c["heldout_gain"]["mean"] for c in serial["candidates"])
     gains = [c["heldout_gain"]["mean"] for c in serial["candidates"]]

@@ -244,6 +244,50 @@ def test_options_are_checked():
     for bad in (-1, 1, 17, True, 2.0):
         with pytest.raises(ValueError, match="calibration_draws"):
             Options(calibration_draws=bad)
+    with pytest.raises(ValueError, match="unknown score"):
+        Options(ensemble=4, score="crps")
+    with pytest.raises(ValueError, match="needs ensemble"):       # one rollout has no spread
+        Options(score="energy")
+    assert Options().score == "distance" and Options(ensemble=2, score="energy").score == "energy"
+
+
+def test_the_energy_score_prefers_the_model_that_spreads_as_the_liquid_does():
+    """A blob at a random column each frame (the liquid's chaos); model A draws it as the
+    liquid does, model B always at the middle. The mean loss of B's draws is lower (a fixed
+    guess at the middle misses a random column by less than another random column does), so
+    scoring draws by their mean loss favours a model that spreads less than the liquid. The
+    energy score favours A. Analytically, for columns uniform on 0 … L and this loss
+    (|column shift| / W1_SCALE), E|X − Y| → L/3 and E|L/2 − Y| → L/4: mean loss A L/3, B L/4;
+    energy score A L/3 − L/6 = L/6, B L/4 (all / W1_SCALE)."""
+    from liquidtwin.discrepancy.analysis import _Evaluator, _key, ensemble_losses, ensemble_spread
+    from liquidtwin.discrepancy.residuals import W1_SCALE
+
+    rng = np.random.default_rng(3)
+    F, L, K = 3000, 20, 4
+
+    def blobs(cols):
+        c = np.zeros((len(cols), 6, L + 4), bool)
+        for f, x in enumerate(cols):
+            c[f, 2:4, x:x + 3] = True                    # 6 cells: above MIN_CELLS
+        return c
+
+    obs = blobs(rng.integers(0, L + 1, F))
+    ev = _Evaluator([None])
+    a = [Extension("none", {}, {"lambda_v": 1.0}).drawn(k) for k in range(1, K + 1)]
+    b = [Extension("none", {}, {"lambda_v": 2.0}).drawn(k) for k in range(1, K + 1)]
+    ev.preload({_key(e): ([blobs(rng.integers(0, L + 1, F))], [None]) for e in a}
+               | {_key(e): ([blobs(np.full(F, L // 2))], [None]) for e in b})
+    dist = {m: float(ensemble_losses(ev, d, [obs])[0].mean()) for m, d in (("A", a), ("B", b))}
+    energy = {m: float(ensemble_losses(ev, d, [obs], "energy")[0].mean()) for m, d in (("A", a), ("B", b))}
+    assert dist["B"] < dist["A"] and energy["A"] < energy["B"]
+    # against the analytic values (discrete uniform on 0 … L: E|X − Y| = L(L + 2) / (3(L + 1)))
+    e_xy = L * (L + 2) / (3 * (L + 1)) / W1_SCALE
+    e_mid = np.mean(np.abs(np.arange(L + 1) - L // 2)) / W1_SCALE
+    assert dist["A"] == pytest.approx(e_xy, rel=0.05) and dist["B"] == pytest.approx(e_mid, rel=0.05)
+    assert energy["A"] == pytest.approx(e_xy / 2, rel=0.08) and energy["B"] == pytest.approx(e_mid, rel=0.05)
+    # B's draws never differ: no spread; A's spread is the distance between two random columns
+    assert float(ensemble_spread(ev, b)[0].max()) == 0.0
+    assert float(ensemble_spread(ev, a)[0].mean()) == pytest.approx(e_xy, rel=0.05)
 
 
 def test_calibration_on_draws_takes_the_trial_with_the_least_mean_loss_over_its_draws():

@@ -34,6 +34,7 @@ Only the recordings are read; nothing here knows of truth sidecars.
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass
 
@@ -91,6 +92,8 @@ NULL_PARAM_SPREAD = 0.15
 EXTRA_ITERATIONS = 2
 #: What a candidate's held-out gain is measured from (``Options.reference``).
 REFERENCES = ("base", "best", "median")
+#: How an ensemble of draws is scored per frame (``Options.score``).
+SCORES = ("distance", "energy")
 
 
 @dataclass(frozen=True)
@@ -130,7 +133,13 @@ class Options:
     0: off, the rule before). The fits themselves stay single rollouts; measured at stop 62 and
     off (README, "Gains from ensembles of draws"); calibration_draws: K ≥ 2 calibrates λ_v, λ_c
     by the mean fitting loss of K draws of each trial's prediction (:func:`calibrate`; 0: one
-    rollout each, the rule before)."""
+    rollout each, the rule before); score: how the ensemble's K draws are scored per frame:
+    ``"distance"``, the mean of their losses (the default); ``"energy"``, the energy score, that
+    mean less half the mean loss between two of the draws (:func:`ensemble_spread`). The mean loss
+    of a chaotic model is lowest for a model that spreads less than the liquid, not for the one
+    that moves as it does; the energy score is lowest, in expectation, for the model whose
+    draws are distributed as the recording (a proper scoring rule: Gneiting and Raftery 2007,
+    for a distance of negative type). Needs ``ensemble``."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -150,6 +159,7 @@ class Options:
     reference: str = "base"
     ensemble: int = 0
     calibration_draws: int = 0
+    score: str = "distance"
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -177,6 +187,10 @@ class Options:
                 or not 0 <= self.calibration_draws <= 16 or self.calibration_draws == 1:
             raise ValueError(f"calibration_draws must be 0 (off) or a whole number in [2, 16], "
                              f"got {self.calibration_draws!r}")
+        if self.score not in SCORES:
+            raise ValueError(f"unknown score {self.score!r}; known: {', '.join(SCORES)}")
+        if self.score != "distance" and not self.ensemble:
+            raise ValueError(f"score {self.score!r} scores an ensemble of draws: it needs ensemble >= 2")
         if not 0 <= self.pose_smoothing_s <= 1:
             raise ValueError(f"pose_smoothing_s must be in [0, 1] s, got {self.pose_smoothing_s!r}")
 
@@ -489,6 +503,26 @@ def draw_ensembles(pool, ev, exts: list, draws: int) -> None:
             ev.cells(e)
 
 
+def ensemble_losses(ev, draws: list, obs_cells: list, score: str = "distance") -> list:
+    """Per episode, (F,) the score of the ensemble ``draws`` (drawn extensions) against the
+    observed cells ``obs_cells``, frame by frame: the mean of their losses (``"distance"``) or
+    the energy score, that mean less half :func:`ensemble_spread` (``"energy"``; ``Options.score``)."""
+    losses = [ev.losses(d, obs_cells) for d in draws]
+    out = [np.mean([ls[i] for ls in losses], axis=0) for i in range(len(obs_cells))]
+    if score == "energy":
+        out = [o - 0.5 * s for o, s in zip(out, ensemble_spread(ev, draws))]
+    return out
+
+
+def ensemble_spread(ev, exts: list) -> list:
+    """Per episode, (F,) the mean loss (``cell_metrics``) between two of the drawn extensions
+    ``exts`` (every pair once): how far apart the model's own draws land, frame by frame."""
+    cells = [ev.cells(e) for e in exts]
+    pairs = list(itertools.combinations(range(len(exts)), 2))
+    return [np.mean([cell_metrics(cells[a][i], cells[b][i])["loss"] for a, b in pairs], axis=0)
+            for i in range(len(ev.sims))]
+
+
 def _fit_times(ep, ts, fit: np.ndarray, frames) -> np.ndarray:
     """Which correction samples (times ``ts``) fall on this episode's fitting frames."""
     return np.isin(np.round(ts * 1e6), np.round(ep.frame_t[frames][fit] * 1e6))
@@ -664,8 +698,8 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     ens = opt.ensemble
 
     def ens_held(ext: Extension, cells) -> np.ndarray:
-        """Held-out per-frame losses on ``cells``, averaged over the ensemble's draws of ``ext``."""
-        return np.mean([_held(ev.losses(ext.drawn(k), cells), data)[0] for k in range(1, ens + 1)], axis=0)
+        """Held-out per-frame scores on ``cells`` of the ensemble's draws of ``ext``."""
+        return _held(ensemble_losses(ev, [ext.drawn(k) for k in range(1, ens + 1)], cells, opt.score), data)[0]
 
     if ens:     # the best few's gains from ensembles of draws (Options.ensemble)
         top = ranked[: opt.top]
@@ -675,7 +709,8 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
             gain = base_ens - ens_held(c["_ext"], data.cells)
             c["single_rollout_gain"], c["reference"] = c["heldout_gain"], "ensemble"
             c["heldout_gain"] = {"mean": float(gain.mean()), "ci95": interval(gain, blocks, rng, opt.bootstrap, strata),
-                                 "unit": "coarse loss", "draws": ens}
+                                 "unit": "coarse loss" if opt.score == "distance" else "energy score",
+                                 "draws": ens, "score": opt.score}
         ranked[: opt.top] = sorted(top, key=lambda c: -c["heldout_gain"]["mean"])
     timing["fit"] = time.perf_counter() - t
 

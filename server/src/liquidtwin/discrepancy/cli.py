@@ -35,6 +35,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="measure the best --top candidates' held-out gains, on the recording and on the null "
                         "realisations, from K jittered draws of the base's and of each candidate's prediction "
                         "instead of one rollout each (K rollouts per model; default 0: off)")
+    p.add_argument("--score", choices=("distance", "energy"), default="distance",
+                   help="how --ensemble's K draws are scored per frame: their mean loss (distance, the default) or "
+                        "the energy score, that mean less half the mean loss between two draws (energy: lowest for "
+                        "the model whose draws spread as the liquid does, not for the one that spreads least)")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="calibrate lambda_v, lambda_c by the mean fitting loss of K jittered draws of each trial's "
                         "prediction instead of its one rollout (K rollouts per trial; default 0: off)")
@@ -65,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         opt = Options(camera=args.camera, candidates=tuple(args.candidates), block_s=args.block,
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
                       stratify=not args.no_stratify, prediction_jitter=args.prediction_jitter,
-                      reference=args.reference, ensemble=args.ensemble,
+                      reference=args.reference, ensemble=args.ensemble, score=args.score,
                       calibration_draws=args.calibration_draws,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),
