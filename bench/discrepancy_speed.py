@@ -1,9 +1,11 @@
 """End-to-end wall time of discrepancy discovery on one recording, per stage.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/discrepancy_speed.py [--scene pour_partial] [--quick] [--effect drag] [--jobs 2]
+        [--ensemble K --score energy]
 
 Generates the recording (not timed; seed 4, cup 90 % full), runs ``discrepancy.analyse`` with
-the default options (all ten candidates, calibration, 2 null runs) in ``--jobs`` processes
+the default options (all ten candidates, calibration, 2 null runs; ``--ensemble``, ``--score``
+as ``liquidtwin discrepancy`` takes them) in ``--jobs`` processes
 (``Options.jobs``; 1: all in this one) and prints the report's ``timing_s`` per stage, the
 number of model evaluations, the decision with its fitted value beside the planted effect
 (read from the truth sidecar after the analysis), the particle count, the recording's length,
@@ -42,6 +44,10 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--jobs", type=int, default=1, help="processes running the model evaluations (default 1)")
     p.add_argument("--out", type=Path, help="keep the report (report.json, report.md, plots) in this folder")
+    p.add_argument("--ensemble", type=int, default=0, metavar="K",
+                   help="Options.ensemble: the best candidates' gains from K draws (default 0: off)")
+    p.add_argument("--score", choices=("distance", "energy"), default="distance",
+                   help="Options.score: how the ensemble's draws are scored (default distance)")
     args = p.parse_args()
     from liquidtwin.discrepancy import Options, analyse
     from liquidtwin.generate import generate
@@ -52,7 +58,8 @@ def main() -> None:
         g = generate(args.scene, rec, effects=effects, seed=args.seed, quick=args.quick,
                      choices={"source": "cup", "fraction": 0.9})
         t0 = time.perf_counter()
-        report = analyse([rec], args.out or Path(d) / "out", options=Options(jobs=args.jobs), progress=True)
+        report = analyse([rec], args.out or Path(d) / "out", options=Options(jobs=args.jobs, ensemble=args.ensemble,
+                                                                               score=args.score), progress=True)
         wall = time.perf_counter() - t0
         truth = json.loads(g.truth.read_text())      # read for scoring, after the analysis
     dur = report["_series"]["t"][0]
@@ -67,7 +74,7 @@ def main() -> None:
               "ranked": [{"name": c["name"], "value": c["value"], "gain": round(c["heldout_gain"]["mean"], 4),
                           "ci95": [round(x, 4) for x in c["heldout_gain"]["ci95"]]} for c in report["candidates"][:3]],
               "informative_frames_s": [round(dur[0], 3), round(dur[-1], 3)] if dur else None,
-              "jobs": args.jobs, "peak_mem_bytes": _vm_hwm(),
+              "jobs": args.jobs, "ensemble": args.ensemble, "score": args.score, "peak_mem_bytes": _vm_hwm(),
               "peak_worker_mem_bytes": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 if args.jobs > 1 else None,
               "commit": commit,
               "date": datetime.now(timezone.utc).isoformat()}

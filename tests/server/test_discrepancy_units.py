@@ -371,6 +371,11 @@ def test_the_cli_refuses_bad_options_clearly(tmp_path, capsys):
     assert cli_main(["discrepancy", str(rec), "--out", str(tmp_path / "o"), "--level-runs", "65"]) == 2
     assert "level_runs must be a whole number" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+    # the benchmark checks its analyses' options before it generates any recording
+    with pytest.raises(SystemExit, match="needs ensemble"):
+        cli_main(["evaluate", "discrepancy", "--quick", "--score", "energy", "--data", str(tmp_path / "d"),
+                  "--out", str(tmp_path / "o")])
+    assert not (tmp_path / "d").exists()
 
 
 def test_the_analysis_model_is_converged_further_and_driven_by_smoothed_poses(tmp_path):

@@ -200,6 +200,14 @@ def run(args) -> int:
         raise SystemExit(f"unknown class(es) {bad}; known: {', '.join(_classes())}")
     if args.trials < 1:
         raise SystemExit("--trials must be at least 1")
+    opts = {"null_runs": args.null_runs, "calibrate": not args.no_calibrate, "stratify": not args.no_stratify,
+            "prediction_jitter": args.prediction_jitter, "reference": args.reference, "ensemble": args.ensemble,
+            "calibration_draws": args.calibration_draws, "score": args.score}
+    from ..discrepancy import Options
+    try:
+        Options(**opts)                 # a bad combination stops here, before any recording is made
+    except ValueError as exc:
+        raise SystemExit(f"liquidtwin evaluate discrepancy: {exc}") from None
     case_list = disc_cases(quick=args.quick, trials=args.trials, base_seed=args.seed, classes=classes)
     data = Path(args.data)
     data.mkdir(parents=True, exist_ok=True)
@@ -208,9 +216,6 @@ def run(args) -> int:
     generate_all(_generate, [(c.as_dict(), str(data)) for c in missing], jobs=args.jobs,
                  desc="generate", progress=not args.no_progress)
     out = Path(args.out)
-    opts = {"null_runs": args.null_runs, "calibrate": not args.no_calibrate, "stratify": not args.no_stratify,
-            "prediction_jitter": args.prediction_jitter, "reference": args.reference, "ensemble": args.ensemble,
-            "calibration_draws": args.calibration_draws, "score": args.score}
     work = [(str(data / f"{c.name}.mcap"), str(out / "reports" / c.name), opts) for c in case_list]
     rows = []
     bar = tqdm(total=len(work), desc="discrepancy", unit="rec", disable=args.no_progress)
