@@ -138,8 +138,9 @@ class Options:
     mean less half the mean loss between two of the draws (:func:`ensemble_spread`). The mean loss
     of a chaotic model is lowest for a model that spreads less than the liquid, not for the one
     that moves as it does; the energy score is lowest, in expectation, for the model whose
-    draws are distributed as the recording (a proper scoring rule: Gneiting and Raftery 2007,
-    for a distance of negative type). Needs ``ensemble``."""
+    draws are distributed as the recording (a proper scoring rule, Gneiting and Raftery 2007,
+    for distances of negative type such as the Euclidean; this loss is not shown to be one,
+    so here that is measured, not proven). Needs ``ensemble``."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
