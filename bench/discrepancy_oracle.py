@@ -19,8 +19,9 @@ out, from the same settled fill with ``--realisations`` initial-velocity jitters
 
 Each is scored with the analysis's per-frame loss on the held-out frames, averaged over the
 realisations, and compared with ``base`` by the analysis's interval (block bootstrap,
-stratified); and with the energy score of its realisations (``energy``: that mean less half the
-mean loss between two of them, ``analysis.ensemble_losses``, ``Options.score``). A gain whose interval reaches zero for ``perfect`` says the recording does not
+stratified); and by the energy score of its realisations (``energy``: that mean less half the
+mean loss between two of them, as ``analysis.ensemble_losses`` scores ``Options.score``
+"energy"). A gain whose interval reaches zero for ``perfect`` says the recording does not
 show the effect through this loss: no candidate can be named on it by a held-out gain. The
 camera offset's ``effect`` is not built (the world's offset also shifts the camera, which the
 candidate does not model); its ``perfect`` draws the world's λ with the camera the world filmed
@@ -100,9 +101,10 @@ def oracle(rec: Path, realisations: int) -> dict:
             traj = sim.rollout(ext, initial=(x0, v0 + NULL_JITTER * torch.randn(v0.shape, generator=gen)))
             drawn.append(coarse(sim.render(traj, f, ext=ext)))
             out.append(_held([cell_metrics(drawn[-1], data.cells[0])["loss"]], data)[0])
+        out = np.stack(out)
         spread = np.mean([cell_metrics(drawn[a], drawn[b])["loss"] for a, b in
                           itertools.combinations(range(realisations), 2)], axis=0)
-        return np.stack(out), np.stack(out).mean(0) - 0.5 * _held([spread], data)[0]
+        return out, out.mean(0) - 0.5 * _held([spread], data)[0]
 
     models = {"base": Extension("none", {}, base.base), "effect": _planted(eff, base.base),
               "world": Extension("none", {}, world), "perfect": _planted(eff, world)}
