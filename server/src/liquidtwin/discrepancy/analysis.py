@@ -94,6 +94,8 @@ EXTRA_ITERATIONS = 2
 REFERENCES = ("base", "best", "median")
 #: How an ensemble of draws is scored per frame (``Options.score``).
 SCORES = ("distance", "energy")
+#: How the null bar reads a candidate's null gains when the residual is not real (``Options.null_bar``, ``declare``).
+NULL_BARS = ("magnitude", "spread")
 
 
 @dataclass(frozen=True)
@@ -140,7 +142,10 @@ class Options:
     that moves as it does; the energy score is lowest, in expectation, for the model whose
     draws are distributed as the recording (a proper scoring rule, Gneiting and Raftery 2007,
     for distances of negative type such as the Euclidean; this loss is not shown to be one,
-    so here that is measured, not proven). Needs ``ensemble``."""
+    so here that is measured, not proven). Needs ``ensemble``;
+    null_bar: how a candidate's null gains set its bar when the residual is not real
+    (:func:`declare`): ``"magnitude"`` (the default), 1.5 × their largest magnitude;
+    ``"spread"``, their largest (at least 0) plus 1.5 × their range. Needs null_runs ≥ 2."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -161,6 +166,7 @@ class Options:
     ensemble: int = 0
     calibration_draws: int = 0
     score: str = "distance"
+    null_bar: str = "magnitude"
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -192,6 +198,11 @@ class Options:
             raise ValueError(f"unknown score {self.score!r}; known: {', '.join(SCORES)}")
         if self.score != "distance" and not self.ensemble:
             raise ValueError(f"score {self.score!r} scores an ensemble of draws: it needs ensemble >= 2")
+        if self.null_bar not in NULL_BARS:
+            raise ValueError(f"unknown null bar {self.null_bar!r}; known: {', '.join(NULL_BARS)}")
+        if self.null_bar == "spread" and self.null_runs < 2:
+            raise ValueError(f"null bar 'spread' measures how the null gains spread: it needs null_runs >= 2, "
+                             f"got {self.null_runs}")
         if not 0 <= self.pose_smoothing_s <= 1:
             raise ValueError(f"pose_smoothing_s must be in [0, 1] s, got {self.pose_smoothing_s!r}")
 
@@ -395,7 +406,7 @@ def interval(values: np.ndarray, blocks: np.ndarray, rng, n: int, strata: np.nda
     return [float(lo), float(hi)]
 
 
-def declare(top: list, residual_real: bool, null_gains) -> dict | None:
+def declare(top: list, residual_real: bool, null_gains, bar: str = "magnitude") -> dict | None:
     """Check the best few candidates ``top`` (ranked by held-out gain) against the null, in
     order, and return the first declared (or None). ``null_gains(c)`` fits candidate ``c`` on
     each null realisation and returns its held-out gains there (the expensive part). A
@@ -412,7 +423,15 @@ def declare(top: list, residual_real: bool, null_gains) -> dict | None:
     best of the base model's predictions (``c["reference"] == "best"``, ``Options.reference``)
     takes its largest null gain whether the residual is real or not: a fit that is one more
     realisation of the base model loses to the best of them by construction, so its negative
-    null gains are not chance moving the loss either way."""
+    null gains are not chance moving the loss either way.
+
+    ``bar="spread"`` (``Options.null_bar``) reads a not-real residual's null gains otherwise:
+    their largest (at least 0) is what the pipeline finds where nothing is hidden, and their
+    range is how far chance moves it, so the bar is ``max(max g, 0) + NULL_FACTOR × (max g −
+    min g) + NULL_MARGIN``. A candidate whose fits on nothing-hidden data lose alike on every
+    realisation (a leak, a wall adhesion: it changes the flow whatever it fits) then has a low
+    bar, where the magnitude rule reads the loss as chance and raises it; two null gains that
+    part (−0.3 and +0.1) raise it as before."""
     chosen = None
     for c in top:
         c["declared"] = False
@@ -425,9 +444,12 @@ def declare(top: list, residual_real: bool, null_gains) -> dict | None:
             c["null_skipped"] = "there are no null realisations (null_runs 0)"
         else:
             c["null_gains"] = gains
-            use_abs = not residual_real and c.get("reference", "base") != "best"
-            scale = max(abs(g) for g in gains) if use_abs else max(gains)
-            c["null_threshold"] = max(NULL_FACTOR * scale, 0.0) + NULL_MARGIN
+            chance = not residual_real and c.get("reference", "base") != "best"
+            if chance and bar == "spread":
+                c["null_threshold"] = max(max(gains), 0.0) + NULL_FACTOR * (max(gains) - min(gains)) + NULL_MARGIN
+            else:
+                scale = max(abs(g) for g in gains) if chance else max(gains)
+                c["null_threshold"] = max(NULL_FACTOR * scale, 0.0) + NULL_MARGIN
             c["declared"] = bool(gain["mean"] > c["null_threshold"])
             if c["declared"]:
                 chosen = c
@@ -736,7 +758,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
             c["null_fitted"].append(main_value(ext))   # what the candidate fits where nothing is hidden
         return out
 
-    declared = declare(ranked[: opt.top], residual_real, null_gains)
+    declared = declare(ranked[: opt.top], residual_real, null_gains, opt.null_bar)
     decision, chosen = (declared["name"], declared["_ext"]) if declared else ("none", base)
     timing["null"] += time.perf_counter() - t
     learned = None
@@ -770,7 +792,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
                       "heldout_loss": float(held_ref.mean()),
                       **({} if ref_index is None else {"which": "base" if ref_index == 0 else f"realisation {ref_index - 1}"})},
         "null": {"runs": opt.null_runs, "level_runs": len(null_base), "base_heldout_loss": null_base, "factor": NULL_FACTOR, "margin": NULL_MARGIN,
-                 "residual_factor": RESIDUAL_FACTOR, "residual_real": residual_real},
+                 "residual_factor": RESIDUAL_FACTOR, "residual_real": residual_real, "bar": opt.null_bar},
         "model": chosen.as_dict(),
         "recordings": [str(e.path) for e in eps],
         "camera": eps[0].camera.name,

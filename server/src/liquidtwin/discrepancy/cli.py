@@ -39,6 +39,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="how --ensemble's K draws are scored per frame: their mean loss (distance, the default) or "
                         "the energy score, that mean less half the mean loss between two draws (energy: lowest for "
                         "the model whose draws spread as the liquid does, not for the one that spreads least)")
+    p.add_argument("--null-bar", choices=("magnitude", "spread"), default="magnitude",
+                   help="when the residual is not real, a candidate must beat 1.5 x its null gains' largest magnitude "
+                        "(magnitude, the default) or their largest (at least 0) plus 1.5 x their range (spread: a fit "
+                        "that loses alike on every nothing-hidden realisation does not raise the bar); both + 0.02")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="calibrate lambda_v, lambda_c by the mean fitting loss of K jittered draws of each trial's "
                         "prediction instead of its one rollout (K rollouts per trial; default 0: off)")
@@ -70,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
                       stratify=not args.no_stratify, prediction_jitter=args.prediction_jitter,
                       reference=args.reference, ensemble=args.ensemble, score=args.score,
+                      null_bar=args.null_bar,
                       calibration_draws=args.calibration_draws,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),

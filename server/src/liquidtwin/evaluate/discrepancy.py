@@ -115,6 +115,9 @@ def configure(p) -> None:
     p.add_argument("--score", choices=("distance", "energy"), default="distance",
                    help="how the analyses score --ensemble's draws (default distance; see liquidtwin discrepancy "
                         "--help)")
+    p.add_argument("--null-bar", choices=("magnitude", "spread"), default="magnitude",
+                   help="how the analyses' null gains set a candidate's bar when the residual is not real (default "
+                        "magnitude; see liquidtwin discrepancy --help)")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="the analyses calibrate lambda_v, lambda_c from K jittered draws of each trial "
                         "(default 0: off; see liquidtwin discrepancy --help)")
@@ -202,7 +205,8 @@ def run(args) -> int:
         raise SystemExit("--trials must be at least 1")
     opts = {"null_runs": args.null_runs, "calibrate": not args.no_calibrate, "stratify": not args.no_stratify,
             "prediction_jitter": args.prediction_jitter, "reference": args.reference, "ensemble": args.ensemble,
-            "calibration_draws": args.calibration_draws, "score": args.score}
+            "calibration_draws": args.calibration_draws, "score": args.score,
+            "null_bar": args.null_bar}
     from ..discrepancy import Options
     try:
         Options(**opts)                 # a bad combination stops here, before any recording is made
@@ -230,7 +234,7 @@ def run(args) -> int:
     tab = table(rows)
     t = [r["timing_s"]["total"] for r in rows]
     note = (f"{'quick' if args.quick else 'full'} scenes, {args.trials} trial(s) per class, base seed {args.seed}, "
-            f"null runs {args.null_runs}{'; not calibrated' if args.no_calibrate else ''}{'; intervals not stratified' if args.no_stratify else ''}{f'; predictions jittered {args.prediction_jitter:g} m/s' if args.prediction_jitter else ''}{f'; gains from the {args.reference} reference' if args.reference != 'base' else ''}{f'; the best gains from {args.ensemble} draws' if args.ensemble else ''}{'; energy scores' if args.score == 'energy' else ''}{f'; calibrated on {args.calibration_draws} draws' if args.calibration_draws else ''}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
+            f"null runs {args.null_runs}{'; not calibrated' if args.no_calibrate else ''}{'; intervals not stratified' if args.no_stratify else ''}{f'; predictions jittered {args.prediction_jitter:g} m/s' if args.prediction_jitter else ''}{f'; gains from the {args.reference} reference' if args.reference != 'base' else ''}{f'; the best gains from {args.ensemble} draws' if args.ensemble else ''}{'; energy scores' if args.score == 'energy' else ''}{'; spread null bar' if args.null_bar == 'spread' else ''}{f'; calibrated on {args.calibration_draws} draws' if args.calibration_draws else ''}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
     text = format_table(tab, note)
     print(text)
     doc = {"kind": "discrepancy", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
