@@ -3,13 +3,16 @@ with the current scoring, without re-running any analysis: the ``tied`` range of
 candidate is recomputed from its saved trace, so results from before the range existed are
 scored as a fresh run would be.
 
-    .venv/bin/python bench/discrepancy_rescore.py bench/results/discrepancy_quick_seed0.json [more.json …] [--signed-null]
+    .venv/bin/python bench/discrepancy_rescore.py bench/results/discrepancy_quick_seed0.json [more.json …] [--signed-null | --spread-null]
 
 ``--signed-null`` re-decides each analysis from its saved ranking, gains and null gains with
 the null bar taken from the largest *signed* null gain whatever the residual (the analysis
 takes the largest magnitude when the residual is not real, unless the gains are measured from
 the best prediction: ``analysis.declare``). A candidate the rule would check but whose null
 gains the run did not compute (it was not checked there) leaves the decision open ("?").
+``--spread-null`` re-decides them likewise by ``analysis.declare`` with ``Options.null_bar``
+"spread" (the largest null gain, at least 0, plus 1.5 × their range when the residual is not
+real).
 """
 
 from __future__ import annotations
@@ -39,11 +42,34 @@ def _signed_decision(top: list) -> str:
     return "none"
 
 
+class _Unchecked(Exception):
+    """A candidate the rule would check was not checked against the null in the run."""
+
+
+def _spread_decision(top: list, residual_real: bool) -> str:
+    """``analysis.declare`` with the spread bar on the run's saved gains and null gains (on
+    copies: the rows keep the run's own fields); "?" where it needs null gains not computed."""
+    from liquidtwin.discrepancy.analysis import declare
+
+    def null_gains(c):
+        if not c.get("null_gains"):
+            raise _Unchecked
+        return c["null_gains"]
+    try:
+        chosen = declare([dict(c) for c in top], residual_real, null_gains, "spread")
+    except _Unchecked:
+        return "?"
+    return chosen["name"] if chosen else "none"
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("results", nargs="+", type=Path, help="results.json files of the blind benchmark")
-    p.add_argument("--signed-null", action="store_true",
-                   help="re-decide with the largest signed null gain as the bar (module doc)")
+    rule = p.add_mutually_exclusive_group()
+    rule.add_argument("--signed-null", action="store_true",
+                      help="re-decide with the largest signed null gain as the bar (module doc)")
+    rule.add_argument("--spread-null", action="store_true",
+                      help="re-decide with the spread bar, Options.null_bar 'spread' (module doc)")
     args = p.parse_args()
     from liquidtwin.discrepancy.candidates import tied_range
     from liquidtwin.evaluate.discrepancy import format_table, identified, table
@@ -52,17 +78,19 @@ def main() -> None:
         doc = json.loads(path.read_text())
         rows = doc["rows"]
         for row in rows:
-            if args.signed_null:
-                was = row["named"]
-                row["named"] = _signed_decision(row["candidates"][: TOP])
+            if args.signed_null or args.spread_null:
+                was, top = row["named"], row["candidates"][: TOP]
+                row["named"] = (_signed_decision(top) if args.signed_null
+                                else _spread_decision(top, bool(row.get("null", {}).get("residual_real"))))
                 row["correct"] = row["named"] == row["planted"]
-                print(f"{row['case']['name']}: planted {row['planted']}, named {was}, signed-null rule {row['named']}")
+                print(f"{row['case']['name']}: planted {row['planted']}, named {was}, "
+                      f"{'signed' if args.signed_null else 'spread'}-null rule {row['named']}")
             for c in row["candidates"]:
                 if "tied" not in c and c.get("trace"):
                     c["tied"] = tied_range(c["name"], [(t["params"], t["fit_loss"]) for t in c["trace"]])
             if row["correct"] and row["planted"] != "none" and row["named"] != "?":
                 row["identified"] = identified(next(c for c in row["candidates"] if c["name"] == row["named"]))
-        rule = "; signed-null rule" if args.signed_null else ""
+        rule = "; signed-null rule" if args.signed_null else "; spread-null rule" if args.spread_null else ""
         note = f"{path}{rule}: re-scored ({len(rows)} analyses, base seed {doc.get('base_seed')})"
         print(format_table(table(rows), note), "\n")
 

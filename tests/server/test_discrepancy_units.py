@@ -249,6 +249,12 @@ def test_options_are_checked():
     with pytest.raises(ValueError, match="needs ensemble"):       # one rollout has no spread
         Options(score="energy")
     assert Options().score == "distance" and Options(ensemble=2, score="energy").score == "energy"
+    with pytest.raises(ValueError, match="unknown null bar"):
+        Options(null_bar="signed")
+    for runs in (0, 1):                      # one null gain has no spread
+        with pytest.raises(ValueError, match="needs null_runs >= 2"):
+            Options(null_bar="spread", null_runs=runs)
+    assert Options().null_bar == "magnitude" and Options(null_bar="spread").null_bar == "spread"
 
 
 def test_the_energy_score_prefers_the_model_that_spreads_as_the_liquid_does():
@@ -375,6 +381,9 @@ def test_the_cli_refuses_bad_options_clearly(tmp_path, capsys):
     with pytest.raises(SystemExit, match="needs ensemble"):
         cli_main(["evaluate", "discrepancy", "--quick", "--score", "energy", "--data", str(tmp_path / "d"),
                   "--out", str(tmp_path / "o")])
+    with pytest.raises(SystemExit, match="needs null_runs >= 2"):
+        cli_main(["evaluate", "discrepancy", "--quick", "--null-bar", "spread", "--null-runs", "1",
+                  "--data", str(tmp_path / "d"), "--out", str(tmp_path / "o")])
     assert not (tmp_path / "d").exists()
 
 
@@ -651,6 +660,40 @@ def test_without_a_real_residual_a_negative_null_gain_sets_the_bar():
         chosen = declare(t, real, lambda c: [-0.1, -0.3])
         assert (chosen is not None) == declared
         assert t[0]["null_threshold"] == pytest.approx(NULL_MARGIN + (NULL_FACTOR * 0.3 if not real else 0.0))
+
+
+def test_the_spread_bar_reads_null_gains_by_their_level_and_their_range():
+    # Options.null_bar "spread": with the residual not real the bar is max(max g, 0) + 1.5 ×
+    # (max g − min g) + margin. Seed 9000's planted wind (+0.34) against null gains that both
+    # lose: the magnitude bar (1.5 × 0.237 + 0.02 = 0.376) rejects it, the spread bar
+    # (0 + 1.5 × 0.196 + 0.02 = 0.314) declares it.
+    def top(gain=0.34, lo=0.05):
+        return [{"name": "wind", "heldout_gain": {"mean": gain, "ci95": [lo, gain + 0.2]}}]
+    wind = [-0.041, -0.237]
+    t = top()
+    assert declare(t, False, lambda c: wind) is None
+    assert t[0]["null_threshold"] == pytest.approx(NULL_FACTOR * 0.237 + NULL_MARGIN)
+    t = top()
+    assert declare(t, False, lambda c: wind, "spread") is t[0]
+    assert t[0]["null_threshold"] == pytest.approx(NULL_FACTOR * 0.196 + NULL_MARGIN)
+    # a fit that gains where nothing is hidden sets the level: the bar is that gain + its spread
+    t = top()
+    assert declare(t, False, lambda c: [0.2, 0.1], "spread") is None
+    assert t[0]["null_threshold"] == pytest.approx(0.2 + NULL_FACTOR * 0.1 + NULL_MARGIN)
+    # null gains that part widely raise the bar above the magnitude rule's
+    t, u = top(0.5), top(0.5)
+    assert declare(t, False, lambda c: [-0.3, 0.1], "spread") is None          # 0.1 + 0.6 + 0.02
+    assert declare(u, False, lambda c: [-0.3, 0.1]) is u[0]                    # 0.45 + 0.02
+    # the nothing-hidden pour that made the magnitude rule (a wind of +0.047, null gains −0.09
+    # and −0.31, README "Discrepancy discovery") stays none under both
+    for bar in ("magnitude", "spread"):
+        assert declare(top(0.047, 0.011), False, lambda c: [-0.09, -0.31], bar) is None
+    # with a real residual, or gains from the best prediction, the bar is the largest null gain's, as before
+    for real, ref in ((True, "base"), (False, "best")):
+        t = top()
+        t[0]["reference"] = ref
+        assert declare(t, real, lambda c: wind, "spread") is t[0]
+        assert t[0]["null_threshold"] == pytest.approx(NULL_MARGIN)
 
 
 def test_values_the_loss_cannot_tell_apart_are_reported_as_a_range():
