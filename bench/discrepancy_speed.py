@@ -1,11 +1,12 @@
 """End-to-end wall time of discrepancy discovery on one recording, per stage.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/discrepancy_speed.py [--scene pour_partial] [--quick] [--effect drag] [--jobs 2]
-        [--ensemble K --score energy]
+        [--ensemble K] [--score energy|distance] [--null-bar spread|magnitude]
 
 Generates the recording (not timed; seed 4, cup 90 % full), runs ``discrepancy.analyse`` with
-the default options (all ten candidates, calibration, 2 null runs; ``--ensemble``, ``--score``
-as ``liquidtwin discrepancy`` takes them) in ``--jobs`` processes
+the default options (all ten candidates, calibration, 2 null runs, gains from 4 draws scored
+by the energy score, the spread null bar; ``--ensemble``, ``--score``, ``--null-bar`` as
+``liquidtwin discrepancy`` takes them) in ``--jobs`` processes
 (``Options.jobs``; 1: all in this one) and prints the report's ``timing_s`` per stage, the
 number of model evaluations, the decision with its fitted value beside the planted effect
 (read from the truth sidecar after the analysis), the particle count, the recording's length,
@@ -44,12 +45,16 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--jobs", type=int, default=1, help="processes running the model evaluations (default 1)")
     p.add_argument("--out", type=Path, help="keep the report (report.json, report.md, plots) in this folder")
-    p.add_argument("--ensemble", type=int, default=0, metavar="K",
-                   help="Options.ensemble: the best candidates' gains from K draws (default 0: off)")
-    p.add_argument("--score", choices=("distance", "energy"), default="distance",
-                   help="Options.score: how the ensemble's draws are scored (default distance)")
+    p.add_argument("--ensemble", type=int, default=None, metavar="K",
+                   help="Options.ensemble: the best candidates' gains from K draws (default: Options's; 0: one rollout)")
+    p.add_argument("--score", choices=("distance", "energy"), default=None,
+                   help="Options.score: how the ensemble's draws are scored (default: Options's)")
+    p.add_argument("--null-bar", choices=("magnitude", "spread"), default=None,
+                   help="Options.null_bar: how the null gains set the bar (default: Options's)")
     args = p.parse_args()
     from liquidtwin.discrepancy import Options, analyse
+    opt = Options(jobs=args.jobs, **{k: v for k, v in (("ensemble", args.ensemble), ("score", args.score),
+                                                       ("null_bar", args.null_bar)) if v is not None})
     from liquidtwin.generate import generate
     from liquidtwin.generate.effects import parse_effect
     with tempfile.TemporaryDirectory() as d:
@@ -58,8 +63,7 @@ def main() -> None:
         g = generate(args.scene, rec, effects=effects, seed=args.seed, quick=args.quick,
                      choices={"source": "cup", "fraction": 0.9})
         t0 = time.perf_counter()
-        report = analyse([rec], args.out or Path(d) / "out", options=Options(jobs=args.jobs, ensemble=args.ensemble,
-                                                                               score=args.score), progress=True)
+        report = analyse([rec], args.out or Path(d) / "out", options=opt, progress=True)
         wall = time.perf_counter() - t0
         truth = json.loads(g.truth.read_text())      # read for scoring, after the analysis
     dur = report["_series"]["t"][0]
@@ -74,7 +78,7 @@ def main() -> None:
               "ranked": [{"name": c["name"], "value": c["value"], "gain": round(c["heldout_gain"]["mean"], 4),
                           "ci95": [round(x, 4) for x in c["heldout_gain"]["ci95"]]} for c in report["candidates"][:3]],
               "informative_frames_s": [round(dur[0], 3), round(dur[-1], 3)] if dur else None,
-              "jobs": args.jobs, "ensemble": args.ensemble, "score": args.score, "peak_mem_bytes": _vm_hwm(),
+              "jobs": args.jobs, "ensemble": opt.ensemble, "score": opt.score, "null_bar": opt.null_bar, "peak_mem_bytes": _vm_hwm(),
               "peak_worker_mem_bytes": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 if args.jobs > 1 else None,
               "commit": commit,
               "date": datetime.now(timezone.utc).isoformat()}

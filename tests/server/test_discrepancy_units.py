@@ -11,7 +11,7 @@ import torch
 from liquidtwin.discrepancy import CANDIDATES, Extension, Options, apply_physics, camera_for, load_model, save_model
 from liquidtwin.discrepancy.analysis import NULL_FACTOR, NULL_MARGIN, _Data, declare, interval, reference
 from liquidtwin.discrepancy.candidates import COARSE, FINE, LIBRARY, _line, _vertex, fit_candidate, main_value
-from liquidtwin.discrepancy.model import model_from_dict, rotation_deg
+from liquidtwin.discrepancy.model import ENSEMBLE, model_from_dict, rotation_deg
 from liquidtwin.discrepancy.residuals import CELL, EMPTY_W1, cell_metrics, coarse, pixel_iou
 from liquidtwin.camera import Camera
 from liquidtwin.sim import FluidModel, QuadraticDrag, UniformAcceleration, WallAdhesion
@@ -240,21 +240,18 @@ def test_options_are_checked():
     for bad in (-1, 1, 17, True, 2.0):       # one draw is no ensemble
         with pytest.raises(ValueError, match="ensemble"):
             Options(ensemble=bad)
-    assert Options().ensemble == 0 and Options(ensemble=4).ensemble == 4
     for bad in (-1, 1, 17, True, 2.0):
         with pytest.raises(ValueError, match="calibration_draws"):
             Options(calibration_draws=bad)
     with pytest.raises(ValueError, match="unknown score"):
         Options(ensemble=4, score="crps")
-    with pytest.raises(ValueError, match="needs ensemble"):       # one rollout has no spread
-        Options(score="energy")
-    assert Options().score == "distance" and Options(ensemble=2, score="energy").score == "energy"
     with pytest.raises(ValueError, match="unknown null bar"):
         Options(null_bar="signed")
-    for runs in (0, 1):                      # one null gain has no spread
-        with pytest.raises(ValueError, match="needs null_runs >= 2"):
-            Options(null_bar="spread", null_runs=runs)
-    assert Options().null_bar == "magnitude" and Options(null_bar="spread").null_bar == "spread"
+    # the defaults adopted at stop 64, and the rule before them still selectable
+    assert (Options().ensemble, Options().score, Options().null_bar) == (ENSEMBLE, "energy", "spread") == (4, "energy", "spread")
+    old = Options(ensemble=0, score="distance", null_bar="magnitude")
+    assert (old.ensemble, old.score, old.null_bar) == (0, "distance", "magnitude")
+    assert Options(ensemble=0).ensemble == 0 and Options(null_runs=1).null_runs == 1   # no score or bar to refuse
 
 
 def test_the_energy_score_prefers_the_model_that_spreads_as_the_liquid_does():
@@ -378,12 +375,9 @@ def test_the_cli_refuses_bad_options_clearly(tmp_path, capsys):
     assert "level_runs must be a whole number" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
     # the benchmark checks its analyses' options before it generates any recording
-    with pytest.raises(SystemExit, match="needs ensemble"):
-        cli_main(["evaluate", "discrepancy", "--quick", "--score", "energy", "--data", str(tmp_path / "d"),
+    with pytest.raises(SystemExit, match="ensemble must be 0"):
+        cli_main(["evaluate", "discrepancy", "--quick", "--ensemble", "1", "--data", str(tmp_path / "d"),
                   "--out", str(tmp_path / "o")])
-    with pytest.raises(SystemExit, match="needs null_runs >= 2"):
-        cli_main(["evaluate", "discrepancy", "--quick", "--null-bar", "spread", "--null-runs", "1",
-                  "--data", str(tmp_path / "d"), "--out", str(tmp_path / "o")])
     assert not (tmp_path / "d").exists()
 
 
@@ -688,6 +682,10 @@ def test_the_spread_bar_reads_null_gains_by_their_level_and_their_range():
     # and −0.31, README "Discrepancy discovery") stays none under both
     for bar in ("magnitude", "spread"):
         assert declare(top(0.047, 0.011), False, lambda c: [-0.09, -0.31], bar) is None
+    # one null gain has no range: the magnitude bar
+    t = top()
+    assert declare(t, False, lambda c: [-0.237], "spread") is None
+    assert t[0]["null_threshold"] == pytest.approx(NULL_FACTOR * 0.237 + NULL_MARGIN)
     # with a real residual, or gains from the best prediction, the bar is the largest null gain's, as before
     for real, ref in ((True, "base"), (False, "best")):
         t = top()

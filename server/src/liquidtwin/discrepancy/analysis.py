@@ -47,7 +47,7 @@ from .candidates import COARSE, FINE, LIBRARY, fit_candidate, main_value, tied_r
 from .episode import POSE_SMOOTHING_S, load_episode
 from .evidence import REST_RAD_S, evidence, tilt_and_speed
 from .corrections import correction_evidence, fit_learned, pooled, tracker_corrections
-from .model import CANDIDATES, Extension, learned_params
+from .model import CANDIDATES, ENSEMBLE, Extension, learned_params
 from .parallel import Workers
 from .residuals import MIN_CELLS, cell_metrics, coarse, pixel_iou
 from .rollout import Simulator
@@ -128,24 +128,27 @@ class Options:
     one fixed draw for all of them (``rollout.Simulator``; 0: the settled fill as it is). The
     null realisations start jittered (:data:`NULL_JITTER`); an unjittered prediction is a
     realisation of another kind (README, "Discrepancy discovery": the base rollout as an outlier);
-    ensemble: K ≥ 2 measures the held-out gains of the best ``top`` candidates, on the recording
-    and on the null realisations, as the difference of the mean losses of K draws of the base's
+    ensemble: K ≥ 2 (default :data:`ENSEMBLE`) measures the held-out gains of the best ``top``
+    candidates, on the recording and on the null realisations, from K draws of the base's
     prediction and K of the candidate's (``Extension.draw``: initial velocities jittered, the
     recorded poses, the fitted parameters) instead of one rollout of each (:func:`draw_ensembles`;
-    0: off, the rule before). The fits themselves stay single rollouts; measured at stop 62 and
-    off (README, "Gains from ensembles of draws"); calibration_draws: K ≥ 2 calibrates λ_v, λ_c
-    by the mean fitting loss of K draws of each trial's prediction (:func:`calibrate`; 0: one
-    rollout each, the rule before); score: how the ensemble's K draws are scored per frame:
-    ``"distance"``, the mean of their losses (the default); ``"energy"``, the energy score, that
-    mean less half the mean loss between two of the draws (:func:`ensemble_spread`). The mean loss
-    of a chaotic model is lowest for a model that spreads less than the liquid, not for the one
-    that moves as it does; the energy score is lowest, in expectation, for the model whose
-    draws are distributed as the recording (a proper scoring rule, Gneiting and Raftery 2007,
-    for distances of negative type such as the Euclidean; this loss is not shown to be one,
-    so here that is measured, not proven). Needs ``ensemble``;
+    0: one rollout each, the rule before stop 64). The fits themselves stay single rollouts;
+    calibration_draws: K ≥ 2 calibrates λ_v, λ_c by the mean fitting loss of K draws of each
+    trial's prediction (:func:`calibrate`; 0: one rollout each, the default; measured at stop 62
+    and off); score: how the ensemble's K draws are scored per frame (unused with ensemble 0):
+    ``"energy"`` (the default), the energy score, the mean of their losses less half the mean
+    loss between two of the draws (:func:`ensemble_spread`); ``"distance"``, the mean of their
+    losses. The mean loss of a chaotic model is lowest for a model that spreads less than the
+    liquid, not for the one that moves as it does; the energy score is lowest, in expectation,
+    for the model whose draws are distributed as the recording (a proper scoring rule, Gneiting
+    and Raftery 2007, for distances of negative type such as the Euclidean; this loss is not
+    shown to be one, so here that is measured, not proven);
     null_bar: how a candidate's null gains set its bar when the residual is not real
-    (:func:`declare`): ``"magnitude"`` (the default), 1.5 × their largest magnitude;
-    ``"spread"``, their largest (at least 0) plus 1.5 × their range. Needs null_runs ≥ 2."""
+    (:func:`declare`): ``"spread"`` (the default), their largest (at least 0) plus 1.5 × their
+    range, or the magnitude rule below with fewer than two null gains; ``"magnitude"``, 1.5 ×
+    their largest magnitude (the rule before stop 64). The three defaults (ensemble 4, energy,
+    spread) were adopted together at stop 64 under a rule set before a fresh seed was run
+    (README, "Ensembles scored by the energy score, with the spread bar")."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -163,10 +166,10 @@ class Options:
     stratify: bool = True
     prediction_jitter: float = 0.0
     reference: str = "base"
-    ensemble: int = 0
+    ensemble: int = ENSEMBLE
     calibration_draws: int = 0
-    score: str = "distance"
-    null_bar: str = "magnitude"
+    score: str = "energy"
+    null_bar: str = "spread"
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -196,13 +199,8 @@ class Options:
                              f"got {self.calibration_draws!r}")
         if self.score not in SCORES:
             raise ValueError(f"unknown score {self.score!r}; known: {', '.join(SCORES)}")
-        if self.score != "distance" and not self.ensemble:
-            raise ValueError(f"score {self.score!r} scores an ensemble of draws: it needs ensemble >= 2")
         if self.null_bar not in NULL_BARS:
             raise ValueError(f"unknown null bar {self.null_bar!r}; known: {', '.join(NULL_BARS)}")
-        if self.null_bar == "spread" and self.null_runs < 2:
-            raise ValueError(f"null bar 'spread' measures how the null gains spread: it needs null_runs >= 2, "
-                             f"got {self.null_runs}")
         if not 0 <= self.pose_smoothing_s <= 1:
             raise ValueError(f"pose_smoothing_s must be in [0, 1] s, got {self.pose_smoothing_s!r}")
 
@@ -428,10 +426,11 @@ def declare(top: list, residual_real: bool, null_gains, bar: str = "magnitude") 
     ``bar="spread"`` (``Options.null_bar``) reads a not-real residual's null gains otherwise:
     their largest (at least 0) is what the pipeline finds where nothing is hidden, and their
     range is how far chance moves it, so the bar is ``max(max g, 0) + NULL_FACTOR × (max g −
-    min g) + NULL_MARGIN``. A candidate whose fits on nothing-hidden data lose alike on every
-    realisation (a leak, a wall adhesion: it changes the flow whatever it fits) then has a low
-    bar, where the magnitude rule reads the loss as chance and raises it; two null gains that
-    part (−0.3 and +0.1) raise it as before."""
+    min g) + NULL_MARGIN`` (with one null gain, which has no range, the magnitude bar). A
+    candidate whose fits on nothing-hidden data lose alike on every realisation (a leak, a
+    wall adhesion: it changes the flow whatever it fits) then has a low bar, where the
+    magnitude rule reads the loss as chance and raises it; two null gains that part (−0.3 and
+    +0.1) raise it as before."""
     chosen = None
     for c in top:
         c["declared"] = False
@@ -445,7 +444,7 @@ def declare(top: list, residual_real: bool, null_gains, bar: str = "magnitude") 
         else:
             c["null_gains"] = gains
             chance = not residual_real and c.get("reference", "base") != "best"
-            if chance and bar == "spread":
+            if chance and bar == "spread" and len(gains) >= 2:
                 c["null_threshold"] = max(max(gains), 0.0) + NULL_FACTOR * (max(gains) - min(gains)) + NULL_MARGIN
             else:
                 scale = max(abs(g) for g in gains) if chance else max(gains)

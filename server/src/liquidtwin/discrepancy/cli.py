@@ -6,7 +6,7 @@ import argparse
 import os
 import sys
 
-from .model import CANDIDATES
+from .model import CANDIDATES, ENSEMBLE
 
 HELP = ("find what the simulation gets wrong in recordings, name the cause, extend the model and "
         "measure the held-out gain (report.json, report.md, PNGs, model.json)")
@@ -31,18 +31,19 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "the default), the one of the base model's rollout and realisations that misses least (best), "
                         "or per frame their median loss (median); time and camera offsets re-draw the base rollout and "
                         "are always measured from it. best and median were measured at stop 61 and are off (README)")
-    p.add_argument("--ensemble", type=int, default=0, metavar="K",
+    p.add_argument("--ensemble", type=int, default=ENSEMBLE, metavar="K",
                    help="measure the best --top candidates' held-out gains, on the recording and on the null "
                         "realisations, from K jittered draws of the base's and of each candidate's prediction "
-                        "instead of one rollout each (K rollouts per model; default 0: off)")
-    p.add_argument("--score", choices=("distance", "energy"), default="distance",
-                   help="how --ensemble's K draws are scored per frame: their mean loss (distance, the default) or "
-                        "the energy score, that mean less half the mean loss between two draws (energy: lowest for "
-                        "the model whose draws spread as the liquid does, not for the one that spreads least)")
-    p.add_argument("--null-bar", choices=("magnitude", "spread"), default="magnitude",
-                   help="when the residual is not real, a candidate must beat 1.5 x its null gains' largest magnitude "
-                        "(magnitude, the default) or their largest (at least 0) plus 1.5 x their range (spread: a fit "
-                        "that loses alike on every nothing-hidden realisation does not raise the bar); both + 0.02")
+                        f"(K rollouts per model; default {ENSEMBLE}; 0: one rollout each, the rule before stop 64)")
+    p.add_argument("--score", choices=("distance", "energy"), default="energy",
+                   help="how --ensemble's K draws are scored per frame: the energy score, their mean loss less half "
+                        "the mean loss between two draws (energy, the default: lowest for the model whose draws spread "
+                        "as the liquid does, not for the one that spreads least), or their mean loss (distance)")
+    p.add_argument("--null-bar", choices=("magnitude", "spread"), default="spread",
+                   help="when the residual is not real, a candidate must beat its null gains' largest (at least 0) "
+                        "plus 1.5 x their range (spread, the default: a fit that loses alike on every nothing-hidden "
+                        "realisation does not raise the bar) or 1.5 x their largest magnitude (magnitude, the rule "
+                        "before stop 64); both + 0.02")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="calibrate lambda_v, lambda_c by the mean fitting loss of K jittered draws of each trial's "
                         "prediction instead of its one rollout (K rollouts per trial; default 0: off)")

@@ -42,6 +42,9 @@ MODEL_FILE_VERSION = 1
 CANDIDATES = ("drag", "wind", "viscosity", "cohesion", "wall_adhesion", "leak", "blockage", "fill_error",
               "time_offset", "camera_offset")
 OBSERVATION = ("time_offset", "camera_offset")
+#: Draws of each prediction (``Extension.draw`` 1 … K) the analysis measures the best candidates'
+#: held-out gains from (``analysis.Options.ensemble``; 0: one rollout each).
+ENSEMBLE = 4
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ import numpy as np
 
 from .benchmark import generate_all, missing_from
 from .cli import add_common, save_results
+from ..discrepancy.model import ENSEMBLE
 from ..procs import map_jobs
 
 HELP = "blind hidden-effect benchmark of discrepancy discovery: confusion matrix and parameter errors"
@@ -109,15 +110,15 @@ def configure(p) -> None:
     p.add_argument("--reference", choices=("base", "best", "median"), default="base",
                    help="what the analyses measure held-out gains from (default base; see liquidtwin "
                         "discrepancy --help)")
-    p.add_argument("--ensemble", type=int, default=0, metavar="K",
+    p.add_argument("--ensemble", type=int, default=ENSEMBLE, metavar="K",
                    help="the analyses measure the best candidates' gains from K jittered draws of each prediction "
-                        "(default 0: off; see liquidtwin discrepancy --help)")
-    p.add_argument("--score", choices=("distance", "energy"), default="distance",
-                   help="how the analyses score --ensemble's draws (default distance; see liquidtwin discrepancy "
+                        f"(default {ENSEMBLE}; 0: one rollout each; see liquidtwin discrepancy --help)")
+    p.add_argument("--score", choices=("distance", "energy"), default="energy",
+                   help="how the analyses score --ensemble's draws (default energy; see liquidtwin discrepancy "
                         "--help)")
-    p.add_argument("--null-bar", choices=("magnitude", "spread"), default="magnitude",
+    p.add_argument("--null-bar", choices=("magnitude", "spread"), default="spread",
                    help="how the analyses' null gains set a candidate's bar when the residual is not real (default "
-                        "magnitude; see liquidtwin discrepancy --help)")
+                        "spread; see liquidtwin discrepancy --help)")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="the analyses calibrate lambda_v, lambda_c from K jittered draws of each trial "
                         "(default 0: off; see liquidtwin discrepancy --help)")
