@@ -25,7 +25,7 @@ def _comparable(report: dict) -> dict:
     return {k: v for k, v in report.items() if k not in ("timing_s", "options", "evaluations")}
 
 
-def _null_fit_every_candidate(top, residual_real, null_gains):
+def _null_fit_every_candidate(top, residual_real, null_gains, bar=None):
     """``analysis.declare`` for this test: fit every candidate on the null (the real one skips
     those whose held-out interval reaches zero, which depends on the realisation) and declare none."""
     for c in top:
@@ -39,7 +39,9 @@ def test_two_worker_processes_give_the_serial_report(tmp_path, monkeypatch):
     # a physics candidate (re-simulated in the workers) and an observation one (re-drawn); the
     # calibration's trials run in the workers, the planted offset makes the residual real, and
     # every candidate is fitted on the null there too (decided here, in this process)
-    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, level_runs=3, bootstrap=200, reference="best")
+    # one rollout per model here (ensemble 0); the ensembles' draws have the test below
+    opts = dict(candidates=("drag", "time_offset"), top=2, null_runs=1, level_runs=3, bootstrap=200, reference="best",
+                ensemble=0)
     monkeypatch.setattr(analysis, "declare", _null_fit_every_candidate)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)           # as each worker: the same float rounding
