@@ -3,7 +3,8 @@ with the current scoring, without re-running any analysis: the ``tied`` range of
 candidate is recomputed from its saved trace, so results from before the range existed are
 scored as a fresh run would be.
 
-    .venv/bin/python bench/discrepancy_rescore.py bench/results/discrepancy_quick_seed0.json [more.json …] [--signed-null | --spread-null]
+    .venv/bin/python bench/discrepancy_rescore.py bench/results/discrepancy_quick_seed0.json [more.json …]
+        [--signed-null | --spread-null]
 
 ``--signed-null`` re-decides each analysis from its saved ranking, gains and null gains with
 the null bar taken from the largest *signed* null gain whatever the residual (the analysis
@@ -56,7 +57,7 @@ def _spread_decision(top: list, residual_real: bool) -> str:
             raise _Unchecked
         return c["null_gains"]
     try:
-        chosen = declare([dict(c) for c in top], residual_real, null_gains, "spread")
+        chosen = declare([dict(c) for c in top], residual_real, null_gains, bar="spread")
     except _Unchecked:
         return "?"
     return chosen["name"] if chosen else "none"

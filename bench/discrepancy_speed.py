@@ -46,7 +46,8 @@ def main() -> None:
     p.add_argument("--jobs", type=int, default=1, help="processes running the model evaluations (default 1)")
     p.add_argument("--out", type=Path, help="keep the report (report.json, report.md, plots) in this folder")
     p.add_argument("--ensemble", type=int, default=None, metavar="K",
-                   help="Options.ensemble: the best candidates' gains from K draws (default: Options's; 0: one rollout)")
+                   help="Options.ensemble: the best candidates' gains from K draws "
+                        "(default: Options's; 0: one rollout)")
     p.add_argument("--score", choices=("distance", "energy"), default=None,
                    help="Options.score: how the ensemble's draws are scored (default: Options's)")
     p.add_argument("--null-bar", choices=("magnitude", "spread"), default=None,
@@ -78,7 +79,8 @@ def main() -> None:
               "ranked": [{"name": c["name"], "value": c["value"], "gain": round(c["heldout_gain"]["mean"], 4),
                           "ci95": [round(x, 4) for x in c["heldout_gain"]["ci95"]]} for c in report["candidates"][:3]],
               "informative_frames_s": [round(dur[0], 3), round(dur[-1], 3)] if dur else None,
-              "jobs": args.jobs, "ensemble": opt.ensemble, "score": opt.score, "null_bar": opt.null_bar, "peak_mem_bytes": _vm_hwm(),
+              "jobs": args.jobs, "ensemble": opt.ensemble, "score": opt.score, "null_bar": opt.null_bar,
+              "peak_mem_bytes": _vm_hwm(),
               "peak_worker_mem_bytes": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 if args.jobs > 1 else None,
               "commit": commit,
               "date": datetime.now(timezone.utc).isoformat()}

@@ -25,7 +25,7 @@ def _comparable(report: dict) -> dict:
     return {k: v for k, v in report.items() if k not in ("timing_s", "options", "evaluations")}
 
 
-def _null_fit_every_candidate(top, residual_real, null_gains, bar=None):
+def _null_fit_every_candidate(top, residual_real, null_gains, *, bar):
     """``analysis.declare`` for this test: fit every candidate on the null (the real one skips
     those whose held-out interval reaches zero, which depends on the realisation) and declare none."""
     for c in top:

@@ -248,7 +248,8 @@ def test_options_are_checked():
     with pytest.raises(ValueError, match="unknown null bar"):
         Options(null_bar="signed")
     # the defaults adopted at stop 64, and the rule before them still selectable
-    assert (Options().ensemble, Options().score, Options().null_bar) == (ENSEMBLE, "energy", "spread") == (4, "energy", "spread")
+    default = Options()
+    assert ENSEMBLE == 4 and (default.ensemble, default.score, default.null_bar) == (4, "energy", "spread")
     old = Options(ensemble=0, score="distance", null_bar="magnitude")
     assert (old.ensemble, old.score, old.null_bar) == (0, "distance", "magnitude")
     assert Options(ensemble=0).ensemble == 0 and Options(null_runs=1).null_runs == 1   # no score or bar to refuse
@@ -511,19 +512,25 @@ def test_a_fill_error_search_stops_at_the_rim():
         assert main_value(ext) == pytest.approx(upper)
 
 
-def _all_checked(top, residual_real, gains):
+def _all_checked(top, residual_real, gains, bar):
     """The rule as it was: every one of the best few fitted on the null, the first that passes
     declared (the reference the lazy ``declare`` must agree with). Without a real residual,
-    the null gains' magnitudes set the threshold."""
+    the null gains' magnitudes set the threshold ("magnitude"), or their level and range ("spread")."""
     for c in top:
-        g = gains[c["name"]] if residual_real else [abs(x) for x in gains[c["name"]]]
-        thr = max(NULL_FACTOR * max(g), 0.0) + NULL_MARGIN
+        g = gains[c["name"]]
+        if residual_real:
+            thr = max(NULL_FACTOR * max(g), 0.0) + NULL_MARGIN
+        elif bar == "magnitude":
+            thr = max(NULL_FACTOR * max(abs(x) for x in g), 0.0) + NULL_MARGIN
+        else:
+            thr = max(max(g), 0.0) + NULL_FACTOR * (max(g) - min(g)) + NULL_MARGIN
         if c["heldout_gain"]["ci95"][0] > 0 and c["heldout_gain"]["mean"] > thr:
             return c["name"]
     return None
 
 
-def test_the_null_is_fitted_only_where_it_can_change_the_decision():
+@pytest.mark.parametrize("bar", ["magnitude", "spread"])
+def test_the_null_is_fitted_only_where_it_can_change_the_decision(bar):
     rng = np.random.default_rng(3)
     fitted_total = declared_real = declared_not_real = 0
     for case in range(300):
@@ -541,8 +548,8 @@ def test_the_null_is_fitted_only_where_it_can_change_the_decision():
             fitted.append(c["name"])
             return gains[c["name"]]
 
-        chosen = declare(top, real, null_gains)
-        assert (chosen["name"] if chosen else None) == _all_checked(top, real, gains)
+        chosen = declare(top, real, null_gains, bar=bar)
+        assert (chosen["name"] if chosen else None) == _all_checked(top, real, gains, bar)
         fitted_total += len(fitted)
         declared_real += bool(chosen) and real
         declared_not_real += bool(chosen) and not real
@@ -594,13 +601,13 @@ def test_against_the_best_prediction_a_negative_null_gain_does_not_raise_the_bar
     def top(ref):
         return [{"name": "drag", "reference": ref, "heldout_gain": {"mean": 0.3, "ci95": [0.1, 0.5]}}]
     t = top("best")
-    assert declare(t, False, lambda c: [-0.225, -0.107]) is t[0]
+    assert declare(t, False, lambda c: [-0.225, -0.107], bar="magnitude") is t[0]
     assert t[0]["null_threshold"] == pytest.approx(NULL_MARGIN)
     for ref in ("base", "median"):
         t = top(ref)
-        assert declare(t, False, lambda c: [-0.225, -0.107]) is None      # 0.3 < 1.5 × 0.225 + margin
+        assert declare(t, False, lambda c: [-0.225, -0.107], bar="magnitude") is None  # 0.3 < 1.5 × 0.225 + margin
     t = top("best")
-    assert declare(t, False, lambda c: [0.25, -0.4]) is None               # a positive null gain still counts
+    assert declare(t, False, lambda c: [0.25, -0.4], bar="magnitude") is None  # a positive null gain counts
     assert t[0]["null_threshold"] == pytest.approx(NULL_FACTOR * 0.25 + NULL_MARGIN)
     with pytest.raises(ValueError, match="reference"):
         Options(reference="ensemble")
@@ -608,7 +615,7 @@ def test_against_the_best_prediction_a_negative_null_gain_does_not_raise_the_bar
 
 def test_without_null_realisations_nothing_is_declared():
     top = [{"name": "drag", "heldout_gain": {"mean": 0.5, "ci95": [0.3, 0.7]}}]
-    assert declare(top, True, lambda c: []) is None
+    assert declare(top, True, lambda c: [], bar="spread") is None
     assert top[0]["declared"] is False and "null_gains" not in top[0]
     assert "null_runs 0" in top[0]["null_skipped"]
 
@@ -651,7 +658,7 @@ def test_without_a_real_residual_a_negative_null_gain_sets_the_bar():
         return [{"name": "wind", "heldout_gain": {"mean": 0.05, "ci95": [0.01, 0.09]}}]
     for real, declared in ((False, False), (True, True)):
         t = top()
-        chosen = declare(t, real, lambda c: [-0.1, -0.3])
+        chosen = declare(t, real, lambda c: [-0.1, -0.3], bar="magnitude")
         assert (chosen is not None) == declared
         assert t[0]["null_threshold"] == pytest.approx(NULL_MARGIN + (NULL_FACTOR * 0.3 if not real else 0.0))
 
@@ -665,32 +672,32 @@ def test_the_spread_bar_reads_null_gains_by_their_level_and_their_range():
         return [{"name": "wind", "heldout_gain": {"mean": gain, "ci95": [lo, gain + 0.2]}}]
     wind = [-0.041, -0.237]
     t = top()
-    assert declare(t, False, lambda c: wind) is None
+    assert declare(t, False, lambda c: wind, bar="magnitude") is None
     assert t[0]["null_threshold"] == pytest.approx(NULL_FACTOR * 0.237 + NULL_MARGIN)
     t = top()
-    assert declare(t, False, lambda c: wind, "spread") is t[0]
+    assert declare(t, False, lambda c: wind, bar="spread") is t[0]
     assert t[0]["null_threshold"] == pytest.approx(NULL_FACTOR * 0.196 + NULL_MARGIN)
     # a fit that gains where nothing is hidden sets the level: the bar is that gain + its spread
     t = top()
-    assert declare(t, False, lambda c: [0.2, 0.1], "spread") is None
+    assert declare(t, False, lambda c: [0.2, 0.1], bar="spread") is None
     assert t[0]["null_threshold"] == pytest.approx(0.2 + NULL_FACTOR * 0.1 + NULL_MARGIN)
     # null gains that part widely raise the bar above the magnitude rule's
     t, u = top(0.5), top(0.5)
-    assert declare(t, False, lambda c: [-0.3, 0.1], "spread") is None          # 0.1 + 0.6 + 0.02
-    assert declare(u, False, lambda c: [-0.3, 0.1]) is u[0]                    # 0.45 + 0.02
+    assert declare(t, False, lambda c: [-0.3, 0.1], bar="spread") is None          # 0.1 + 0.6 + 0.02
+    assert declare(u, False, lambda c: [-0.3, 0.1], bar="magnitude") is u[0]     # 0.45 + 0.02
     # the nothing-hidden pour that made the magnitude rule (a wind of +0.047, null gains −0.09
     # and −0.31, README "Discrepancy discovery") stays none under both
     for bar in ("magnitude", "spread"):
-        assert declare(top(0.047, 0.011), False, lambda c: [-0.09, -0.31], bar) is None
+        assert declare(top(0.047, 0.011), False, lambda c: [-0.09, -0.31], bar=bar) is None
     # one null gain has no range: the magnitude bar
     t = top()
-    assert declare(t, False, lambda c: [-0.237], "spread") is None
+    assert declare(t, False, lambda c: [-0.237], bar="spread") is None
     assert t[0]["null_threshold"] == pytest.approx(NULL_FACTOR * 0.237 + NULL_MARGIN)
     # with a real residual, or gains from the best prediction, the bar is the largest null gain's, as before
     for real, ref in ((True, "base"), (False, "best")):
         t = top()
         t[0]["reference"] = ref
-        assert declare(t, real, lambda c: wind, "spread") is t[0]
+        assert declare(t, real, lambda c: wind, bar="spread") is t[0]
         assert t[0]["null_threshold"] == pytest.approx(NULL_MARGIN)
 
 

@@ -148,7 +148,7 @@ class Options:
     range, or the magnitude rule below with fewer than two null gains; ``"magnitude"``, 1.5 ×
     their largest magnitude (the rule before stop 64). The three defaults (ensemble 4, energy,
     spread) were adopted together at stop 64 under a rule set before a fresh seed was run
-    (README, "Ensembles scored by the energy score, with the spread bar")."""
+    (README, "The defaults since stop 64")."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -404,13 +404,14 @@ def interval(values: np.ndarray, blocks: np.ndarray, rng, n: int, strata: np.nda
     return [float(lo), float(hi)]
 
 
-def declare(top: list, residual_real: bool, null_gains, bar: str = "magnitude") -> dict | None:
+def declare(top: list, residual_real: bool, null_gains, *, bar: str) -> dict | None:
     """Check the best few candidates ``top`` (ranked by held-out gain) against the null, in
     order, and return the first declared (or None). ``null_gains(c)`` fits candidate ``c`` on
     each null realisation and returns its held-out gains there (the expensive part). A
     candidate is declared when its held-out gain interval is above zero and its gain exceeds
     ``NULL_FACTOR`` × its null gain + ``NULL_MARGIN``, where the null gain is the largest
-    null gain when the residual is real, and the largest null gain's *magnitude* when it is not:
+    null gain when the residual is real, and with ``bar="magnitude"`` the largest null gain's
+    *magnitude* when it is not:
     then nothing but the candidate's own fit speaks for an effect, and a fit that moves the
     held-out loss of nothing-hidden data by −g shows that chance moves it by about g either
     way. Only the candidates that can change the decision are fitted on the null: none whose
@@ -757,7 +758,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
             c["null_fitted"].append(main_value(ext))   # what the candidate fits where nothing is hidden
         return out
 
-    declared = declare(ranked[: opt.top], residual_real, null_gains, opt.null_bar)
+    declared = declare(ranked[: opt.top], residual_real, null_gains, bar=opt.null_bar)
     decision, chosen = (declared["name"], declared["_ext"]) if declared else ("none", base)
     timing["null"] += time.perf_counter() - t
     learned = None
