@@ -234,8 +234,18 @@ def run(args) -> int:
     bar.close()
     tab = table(rows)
     t = [r["timing_s"]["total"] for r in rows]
+    settings = [f"null runs {args.null_runs}"]
+    settings += ["not calibrated"] if args.no_calibrate else []
+    settings += ["intervals not stratified"] if args.no_stratify else []
+    settings += [f"predictions jittered {args.prediction_jitter:g} m/s"] if args.prediction_jitter else []
+    settings += [f"gains from the {args.reference} reference"] if args.reference != "base" else []
+    # the score is used only on an ensemble's draws (Options.score)
+    settings += ([f"the best gains from {args.ensemble} draws, {args.score} scores"] if args.ensemble
+                 else ["gains from one rollout each"])
+    settings += [f"{args.null_bar} null bar"]
+    settings += [f"calibrated on {args.calibration_draws} draws"] if args.calibration_draws else []
     note = (f"{'quick' if args.quick else 'full'} scenes, {args.trials} trial(s) per class, base seed {args.seed}, "
-            f"null runs {args.null_runs}{'; not calibrated' if args.no_calibrate else ''}{'; intervals not stratified' if args.no_stratify else ''}{f'; predictions jittered {args.prediction_jitter:g} m/s' if args.prediction_jitter else ''}{f'; gains from the {args.reference} reference' if args.reference != 'base' else ''}{f'; the best gains from {args.ensemble} draws' if args.ensemble else ''}{'; energy scores' if args.score == 'energy' else ''}{'; spread null bar' if args.null_bar == 'spread' else ''}{f'; calibrated on {args.calibration_draws} draws' if args.calibration_draws else ''}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
+            f"{'; '.join(settings)}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
     text = format_table(tab, note)
     print(text)
     doc = {"kind": "discrepancy", "quick": bool(args.quick), "trials": args.trials, "base_seed": args.seed,
