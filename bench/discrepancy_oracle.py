@@ -2,7 +2,8 @@
 analysis's calibrated base, each averaged over jittered realisations.
 
     OMP_NUM_THREADS=1 .venv/bin/python bench/discrepancy_oracle.py DIR/*.mcap [--realisations 4] \
-        [--results RESULTS.json] [--out bench/results/discrepancy_oracle.json]
+        [--results RESULTS.json] [--lambda-c 0.075,0.09,0.1,0.11,0.125] \
+        [--out bench/results/discrepancy_oracle.json]
 
 For each recording (a blind benchmark's, ``liquidtwin evaluate discrepancy --data DIR``) it runs
 the analysis's own preparation and calibration (blind, as ``liquidtwin discrepancy`` does), then
@@ -26,7 +27,11 @@ show the effect through this loss: no candidate can be named on it by a held-out
 camera offset's ``effect`` is not built (the world's offset also shifts the camera, which the
 candidate does not model); its ``perfect`` draws the world's λ with the camera the world filmed
 with (the sidecar's true pose). With ``--results`` (the benchmark's ``results.json``) each row also
-shows what the analysis named. Writes JSON; prints a table.
+shows what the analysis named. ``--lambda-c`` adds, per value c, ``perfect λ_c=c``: the perfect
+model with the world's λ_c replaced by c (how sharply the recording's loss depends on the
+cohesion the model is given, e.g. whether a viscosity could be fitted at a calibrated λ_c; a
+planted cohesion sets λ_c itself, so there these rows equal ``perfect``).
+Writes JSON; prints a table.
 """
 
 from __future__ import annotations
@@ -61,7 +66,7 @@ def _planted(eff: dict | None, base: dict):
     return None if params is None else Extension(n, {k: float(q) for k, q in params.items()}, base)
 
 
-def oracle(rec: Path, realisations: int) -> dict:
+def oracle(rec: Path, realisations: int, lambda_c: tuple = ()) -> dict:
     import torch
 
     from liquidtwin.discrepancy.analysis import (NULL_JITTER, Options, _held, _held_strata, calibrate, interval,
@@ -108,6 +113,8 @@ def oracle(rec: Path, realisations: int) -> dict:
 
     models = {"base": Extension("none", {}, base.base), "effect": _planted(eff, base.base),
               "world": Extension("none", {}, world), "perfect": _planted(eff, world)}
+    for c in lambda_c:                       # the perfect model at other cohesions
+        models[f"perfect λ_c={c:g}"] = _planted(eff, {**world, "lambda_c": float(c)})
     losses, energy, rows = {}, {}, {}
     for name, ext in models.items():
         if ext is None and not (name == "perfect" and true_cam is not None):
@@ -128,8 +135,16 @@ def main() -> None:
     p.add_argument("recordings", nargs="+", type=Path, help="generated recordings (each with its .truth.json)")
     p.add_argument("--realisations", type=int, default=4, help="jittered rollouts per model (default 4)")
     p.add_argument("--results", type=Path, help="the benchmark's results.json: adds what the analysis named")
+    p.add_argument("--lambda-c", default="", metavar="C,C,…",
+                   help="also draw the perfect model with these λ_c instead of the world's (comma-separated)")
     p.add_argument("--out", type=Path, default=Path("bench/results/discrepancy_oracle.json"))
     args = p.parse_args()
+    try:
+        lambda_c = tuple(float(c) for c in args.lambda_c.split(",") if c.strip())
+    except ValueError:
+        p.error(f"--lambda-c takes comma-separated numbers, got {args.lambda_c!r}")
+    if any(not c > 0 for c in lambda_c):
+        p.error("--lambda-c values must be > 0")
     if args.realisations < 2:
         p.error("--realisations must be at least 2")
     named = {}
@@ -138,7 +153,7 @@ def main() -> None:
     rows = []
     for i, rec in enumerate(args.recordings):
         print(f"[{i + 1}/{len(args.recordings)}] {rec.name}", flush=True)
-        r = oracle(rec, args.realisations)
+        r = oracle(rec, args.realisations, lambda_c)
         r["named"] = named.get(rec.stem)
         rows.append(r)
         eff = r["planted"]
@@ -150,7 +165,7 @@ def main() -> None:
               flush=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"commit": commit, "rows": rows}, indent=1))
+    args.out.write_text(json.dumps({"commit": commit, "lambda_c": list(lambda_c), "rows": rows}, indent=1))
     print(f"wrote {args.out}")
 
 
