@@ -715,30 +715,6 @@ def test_values_the_loss_cannot_tell_apart_are_reported_as_a_range():
     assert tied_range("wind", []) is None
 
 
-def test_a_refined_leak_fit_moves_the_hole_off_the_sites_tried_first():
-    """The coarse fit keeps the three sites of LEAK_SITES; the refined one moves the hole round
-    the wall and down it, then refits the radius there. A separable bowl with its minimum at
-    225°, 0.25 of the depth and 4.5 mm, off every site."""
-    from liquidtwin.discrepancy.candidates import LEAK_SITES
-
-    def loss(e):
-        p = e.params
-        return (((p["radius"] - 0.0045) / 0.001) ** 2 + ((p["azimuth_deg"] - 225.0) / 30.0) ** 2
-                + ((p["height_fraction"] - 0.25) / 0.1) ** 2)
-    ext, _, coarse_trace = fit_candidate("leak", loss, {}, COARSE)
-    assert (ext.params["height_fraction"], ext.params["azimuth_deg"]) in LEAK_SITES
-    assert {(p["height_fraction"], p["azimuth_deg"]) for p, _ in coarse_trace} <= set(LEAK_SITES)
-    ext, _, trace = fit_candidate("leak", loss, {}, FINE)
-    assert ext.params["azimuth_deg"] == pytest.approx(225.0)
-    assert ext.params["height_fraction"] == pytest.approx(0.25)
-    assert ext.params["radius"] == pytest.approx(0.0045, rel=1e-6)      # the parabola of an exact quadratic
-    # it starts as the coarse fit did (the analysis has those points cached) and simulates at
-    # most 16 more: the site's moves cost ~10 rollouts over the old refinement's radius search
-    assert [p for p, _ in trace[: len(coarse_trace)]] == [p for p, _ in coarse_trace]
-    distinct = {tuple(sorted(p.items())) for p, _ in trace} - {tuple(sorted(p.items())) for p, _ in coarse_trace}
-    assert len(distinct) <= 16
-
-
 def test_the_benchmark_does_not_credit_an_unidentified_fit():
     from liquidtwin.evaluate.discrepancy import score, table
     truth = {"effect": {"name": "blockage", "value": 0.407}}

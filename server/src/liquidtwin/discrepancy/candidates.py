@@ -57,11 +57,6 @@ assert tuple(LIBRARY) == CANDIDATES
 
 #: Leak sites tried (height as a share of the liquid depth, azimuth from +x; the lip is at 180°).
 LEAK_SITES = ((0.4, 150.0), (0.4, 180.0), (0.4, 210.0))
-#: A refined leak fit (``FINE``) then moves the best site: its azimuth by this step, deg, each
-#: way (and halfway towards the best one's neighbours), then its height among these shares of
-#: the depth and the site's own.
-LEAK_AZIMUTH_STEP = 30.0
-LEAK_HEIGHTS = (0.25, 0.55)
 WIND_DIRECTIONS = 8
 
 
@@ -174,25 +169,10 @@ def search(name: str, base: dict, rounds: int = COARSE, upper: float | None = No
     elif name == "leak":
         r0 = c.grid[1]
         scores = yield from run([dict(radius=r0, height_fraction=s[0], azimuth_deg=s[1]) for s in LEAK_SITES])
-        h, az = LEAK_SITES[int(np.argmin(scores))]         # the first of equal losses, as min() takes
-
-        def radius(grid, k):
-            return _line_points(lambda xs: run([dict(radius=x, height_fraction=h, azimuth_deg=az) for x in xs]),
-                                grid, False, k)
-        # Refined, the site moves too (the coarse radius first: its points are the coarse fit's).
-        r, _, _ = yield from radius((0.003, 0.008), COARSE if rounds > COARSE else rounds)
-        if rounds > COARSE:
-            # The hole's azimuth, then its height, each by a coarse line search at the radius
-            # found, then the radius refined at the new site. With the three sites alone a hole
-            # elsewhere is made up for by the radius (stop 64, seed 11600: a hole at 231° and
-            # 0.22 of the depth, 4.35 mm, fitted as 3.0 mm at 150° and 0.4).
-            az, _, _ = yield from _line_points(lambda xs: run([dict(radius=r, height_fraction=h, azimuth_deg=a)
-                                                               for a in xs]),
-                                               (az - LEAK_AZIMUTH_STEP, az, az + LEAK_AZIMUTH_STEP), False, COARSE)
-            h, _, _ = yield from _line_points(lambda xs: run([dict(radius=r, height_fraction=v, azimuth_deg=az)
-                                                              for v in xs]), LEAK_HEIGHTS + (h,), False, COARSE)
-            r, _, _ = yield from radius((0.003, r, 0.008), rounds)
-        params = {"radius": r, "height_fraction": h, "azimuth_deg": az}
+        site = LEAK_SITES[int(np.argmin(scores))]          # the first of equal losses, as min() takes
+        r, _, _ = yield from line(lambda r: dict(radius=r, height_fraction=site[0], azimuth_deg=site[1]),
+                                  (0.003, 0.008), False)
+        params = {"radius": r, "height_fraction": site[0], "azimuth_deg": site[1]}
     elif name == "camera_offset":
         r = [0.0, 0.0, 0.0]
         for k in range(1 + (rounds > COARSE)):         # coordinate descent over the three axes
