@@ -715,6 +715,33 @@ def test_values_the_loss_cannot_tell_apart_are_reported_as_a_range():
     assert tied_range("wind", []) is None
 
 
+def test_a_viscosity_or_cohesion_inside_the_calibration_range_is_not_declared():
+    """A fit of a calibrated parameter within CALIBRATION_FACTORS × its stated value is a finer
+    calibration: checked against its null as any other, but not declared; the next candidate
+    can be. Outside the range, or for any other candidate, nothing changes."""
+    from liquidtwin.discrepancy.analysis import CALIBRATION_FACTORS, recalibration
+    stated = {"lambda_v": 60.0, "lambda_c": 0.1}
+    lo, hi = min(CALIBRATION_FACTORS), max(CALIBRATION_FACTORS)
+    assert recalibration({"name": "viscosity", "value": 46.9}, stated)
+    assert recalibration({"name": "viscosity", "value": lo * 60.0}, stated)
+    assert recalibration({"name": "viscosity", "value": hi * 60.0}, stated)
+    assert not recalibration({"name": "viscosity", "value": lo * 60.0 - 1.0}, stated)
+    assert not recalibration({"name": "viscosity", "value": 110.0}, stated)
+    assert recalibration({"name": "cohesion", "value": 0.077}, stated)
+    assert not recalibration({"name": "cohesion", "value": 0.3}, stated)
+    assert not recalibration({"name": "drag", "value": 1.0}, stated)
+    assert not recalibration({"name": "viscosity", "value": 46.9}, {})
+
+    def cand(name, mean, recal):
+        return {"name": name, "heldout_gain": {"mean": mean, "ci95": [mean / 2, 2 * mean]}, "recalibration": recal}
+    top = [cand("viscosity", 0.37, True), cand("cohesion", 0.3, False)]
+    chosen = declare(top, False, lambda c: [0.0, 0.01], bar="spread")
+    assert chosen is top[1] and top[0]["declared"] is False and "calibration" in top[0]["not_declared"]
+    assert top[0]["null_gains"] == [0.0, 0.01]            # measured all the same, for the report
+    top = [cand("viscosity", 0.37, False), cand("cohesion", 0.3, False)]
+    assert declare(top, False, lambda c: [0.0, 0.01], bar="spread") is top[0]
+
+
 def test_the_benchmark_does_not_credit_an_unidentified_fit():
     from liquidtwin.evaluate.discrepancy import score, table
     truth = {"effect": {"name": "blockage", "value": 0.407}}

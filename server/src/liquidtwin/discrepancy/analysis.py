@@ -66,6 +66,10 @@ RESIDUAL_FACTOR = 1.2
 LEVEL_RUNS = 8
 #: Calibration tries the base's λ_v, then λ_c, at these multiples of the stated values.
 CALIBRATION_FACTORS = (0.75, 0.9, 1.1, 1.25)
+#: Candidates that re-fit a parameter the calibration searches. Fitted within the calibration's
+#: range (``CALIBRATION_FACTORS`` × the stated value) such a fit is a finer calibration, not an
+#: effect the model lacks, and is not declared (:func:`recalibration`; ``Options.recalibrations``).
+RECALIBRATES = {"viscosity": "lambda_v", "cohesion": "lambda_c"}
 #: Mask noise of the null realisations (mid-range of what the generator's sensors draw).
 NULL_NOISE = MaskNoise(miss=0.05, false=1.5e-4, ragged_px=0.75, blob_px=4.0, speck_share=0.3)
 #: Rollouts of the base physics kept for re-drawing (oldest dropped first).
@@ -148,7 +152,11 @@ class Options:
     range, or the magnitude rule below with fewer than two null gains; ``"magnitude"``, 1.5 ×
     their largest magnitude (the rule before stop 64). The three defaults (ensemble 4, energy,
     spread) were adopted together at stop 64 under a rule set before a fresh seed was run
-    (README, "The defaults since stop 64")."""
+    (README, "The defaults since stop 64");
+    recalibrations: also declare a viscosity or cohesion fitted within the calibration's search
+    range (:func:`recalibration`; the rule before stop 65). By default such a fit is checked
+    against its null as before but not declared: the calibrated base could have taken that
+    value, so it is a finer calibration, not an effect. Only with ``calibrate``."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -170,6 +178,7 @@ class Options:
     calibration_draws: int = 0
     score: str = "energy"
     null_bar: str = "spread"
+    recalibrations: bool = False
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -404,6 +413,17 @@ def interval(values: np.ndarray, blocks: np.ndarray, rng, n: int, strata: np.nda
     return [float(lo), float(hi)]
 
 
+def recalibration(c: dict, stated: dict) -> bool:
+    """Whether candidate ``c`` (a ranked entry: ``name``, ``value``) re-fits a calibrated
+    parameter (:data:`RECALIBRATES`) to a value inside the calibration's own search range,
+    ``CALIBRATION_FACTORS`` × its ``stated`` value: a λ_v of 47 where 45–75 was searched."""
+    key = RECALIBRATES.get(c["name"])
+    if key is None or key not in stated:
+        return False
+    v = float(stated[key])
+    return min(CALIBRATION_FACTORS) * v <= float(c["value"]) <= max(CALIBRATION_FACTORS) * v
+
+
 def declare(top: list, residual_real: bool, null_gains, *, bar: str) -> dict | None:
     """Check the best few candidates ``top`` (ranked by held-out gain) against the null, in
     order, and return the first declared (or None). ``null_gains(c)`` fits candidate ``c`` on
@@ -451,6 +471,10 @@ def declare(top: list, residual_real: bool, null_gains, *, bar: str) -> dict | N
                 scale = max(abs(g) for g in gains) if chance else max(gains)
                 c["null_threshold"] = max(NULL_FACTOR * scale, 0.0) + NULL_MARGIN
             c["declared"] = bool(gain["mean"] > c["null_threshold"])
+            if c["declared"] and c.get("recalibration"):
+                c["declared"] = False
+                c["not_declared"] = ("it beats its null, but its value lies within the calibration's search range: "
+                                     "a finer calibration, not an effect")
             if c["declared"]:
                 chosen = c
     return chosen
@@ -758,6 +782,10 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
             c["null_fitted"].append(main_value(ext))   # what the candidate fits where nothing is hidden
         return out
 
+    stated = {"lambda_v": float(sims[0].model.params.lambda_v), "lambda_c": float(sims[0].model.params.lambda_c)}
+    if opt.calibrate and not opt.recalibrations:
+        for c in ranked[: opt.top]:
+            c["recalibration"] = recalibration(c, stated)
     declared = declare(ranked[: opt.top], residual_real, null_gains, bar=opt.null_bar)
     decision, chosen = (declared["name"], declared["_ext"]) if declared else ("none", base)
     timing["null"] += time.perf_counter() - t
@@ -788,6 +816,7 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
         "learned": learned,
         "tracker_corrections": tracker,
         "calibration": calib,
+        "stated_params": stated,
         "reference": {"kind": opt.reference, "predictions": 1 if opt.reference == "base" else len(predictions),
                       "heldout_loss": float(held_ref.mean()),
                       **({} if ref_index is None else {"which": "base" if ref_index == 0 else f"realisation {ref_index - 1}"})},

@@ -44,6 +44,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "plus 1.5 x their range (spread, the default: a fit that loses alike on every nothing-hidden "
                         "realisation does not raise the bar) or 1.5 x their largest magnitude (magnitude, the rule "
                         "before stop 64); both + 0.02")
+    p.add_argument("--declare-recalibrations", action="store_true",
+                   help="also declare a viscosity or cohesion fitted within the calibration's own search range "
+                        "(0.75-1.25 x the stated value; the rule before stop 65). By default such a fit is a finer "
+                        "calibration, not an effect, and is reported but not declared")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="calibrate lambda_v, lambda_c by the mean fitting loss of K jittered draws of each trial's "
                         "prediction instead of its one rollout (K rollouts per trial; default 0: off)")
@@ -75,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
                       stratify=not args.no_stratify, prediction_jitter=args.prediction_jitter,
                       reference=args.reference, ensemble=args.ensemble, score=args.score,
-                      null_bar=args.null_bar,
+                      null_bar=args.null_bar, recalibrations=args.declare_recalibrations,
                       calibration_draws=args.calibration_draws,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),

@@ -62,7 +62,7 @@ def markdown(report: dict) -> str:
         if c.get("tied"):
             params += f" (same loss from {c['tied'][0]:.4g} to {c['tied'][1]:.4g})"
         lines.append(f"| {i} | {c['name']} | {params} | {g['mean']:.3f} | {_fmt(g['ci95'])} | {c['heldout_iou_gain']:+.3f} | "
-                     f"{_null_cell(c)} | {_fmt(c.get('null_threshold'))} | {'yes' if c.get('declared') else ''} |")
+                     f"{_null_cell(c)} | {_fmt(c.get('null_threshold'))} | {'yes' if c.get('declared') else ('no: recalibration' if c.get('not_declared') else '')} |")
     if report.get("learned"):
         g = report["learned"]["heldout_gain"]
         lines += ["", f"No candidate explains the residual: a minimum-norm learned correction a = W [v, 1] "
@@ -84,13 +84,18 @@ def markdown(report: dict) -> str:
               f"{_fmt(report['null']['base_heldout_loss'])} (the recording's: {b['heldout_loss']:.3f}; a residual is real above "
               f"{report['null']['residual_factor']} × the largest: {'yes' if report['null']['residual_real'] else 'no'}; "
               "this decides `unexplained` against `none` when nothing is declared). "
-              f"A candidate is declared when its gain's interval is above 0 and its gain exceeds "
-              f"{report['null']['factor']} × its best null gain (its largest null gain's magnitude when the residual is not "
-              "real" + (" and its gains are not measured from the best prediction" if _ref_kind(report) == "best" else "") + ")"
-              + f" + {report['null']['margin']}; the best few are fitted on the first {report['null']['runs']} "
+              f"A candidate is declared when its gain's interval is above 0 and its gain exceeds a bar from its null "
+              f"gains: {report['null']['factor']} × the largest + {report['null']['margin']} when the residual is real; "
+              "when it is not, " + (f"the largest (at least 0) + {report['null']['factor']} × their range + "
+                                    f"{report['null']['margin']}" if report["null"].get("bar") == "spread" else
+                                    f"{report['null']['factor']} × their largest magnitude + {report['null']['margin']}")
+              + (" (the largest for gains measured from the best prediction)" if _ref_kind(report) == "best" else "")
+              + f"; the best few are fitted on the first {report['null']['runs']} "
               "realisations in ranked order until one is declared"
               + (", a physics candidate's gain there measured from the base model's other predictions"
                  if _ref_kind(report) != "base" else "")
+              + (". A viscosity or cohesion fitted within the calibration's own search range is a finer "
+                 "calibration and is not declared" if not report.get("options", {}).get("recalibrations") else "")
               + ".", "",
               "Time per stage (s): " + ", ".join(f"{k} {v}" for k, v in report["timing_s"].items()), ""]
     return "\n".join(lines)

@@ -88,11 +88,11 @@ def _analyse(job) -> dict:
     torch.set_num_threads(1)
     from ..discrepancy import Options, analyse
     rep = analyse([path], out, options=Options(**opts))
-    keep = ("decision", "baseline", "extended", "reference", "null", "timing_s", "evaluations")
+    keep = ("decision", "baseline", "extended", "reference", "null", "timing_s", "evaluations", "stated_params")
     return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "best_tried", "tied",
                                                                               "heldout_gain", "single_rollout_gain", "reference",
                                                                               "null_gains", "null_fitted", "declared",
-                                                                              "trace")}
+                                                                              "recalibration", "not_declared", "trace")}
                                                          for c in rep["candidates"]]}
 
 
@@ -119,6 +119,9 @@ def configure(p) -> None:
     p.add_argument("--null-bar", choices=("magnitude", "spread"), default="spread",
                    help="how the analyses' null gains set a candidate's bar when the residual is not real (default "
                         "spread; see liquidtwin discrepancy --help)")
+    p.add_argument("--declare-recalibrations", action="store_true",
+                   help="the analyses also declare a viscosity or cohesion fitted within the calibration's search "
+                        "range (the rule before stop 65; see liquidtwin discrepancy --help)")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="the analyses calibrate lambda_v, lambda_c from K jittered draws of each trial "
                         "(default 0: off; see liquidtwin discrepancy --help)")
@@ -207,7 +210,7 @@ def run(args) -> int:
     opts = {"null_runs": args.null_runs, "calibrate": not args.no_calibrate, "stratify": not args.no_stratify,
             "prediction_jitter": args.prediction_jitter, "reference": args.reference, "ensemble": args.ensemble,
             "calibration_draws": args.calibration_draws, "score": args.score,
-            "null_bar": args.null_bar}
+            "null_bar": args.null_bar, "recalibrations": args.declare_recalibrations}
     from ..discrepancy import Options
     try:
         Options(**opts)                 # a bad combination stops here, before any recording is made
@@ -229,6 +232,7 @@ def run(args) -> int:
         rows.append(score(case, truth, res) | {"case": case.as_dict(), "timing_s": res["timing_s"],
                                                "baseline": res["baseline"], "extended": res["extended"],
                                                "reference": res["reference"], "null": res["null"],
+                                               "stated_params": res["stated_params"],
                                                "candidates": res["candidates"]})
         bar.update()
     bar.close()
@@ -243,6 +247,7 @@ def run(args) -> int:
     settings += ([f"the best gains from {args.ensemble} draws, {args.score} scores"] if args.ensemble
                  else ["gains from one rollout each"])
     settings += [f"{args.null_bar} null bar"]
+    settings += ["recalibrations declared"] if args.declare_recalibrations else []
     settings += [f"calibrated on {args.calibration_draws} draws"] if args.calibration_draws else []
     note = (f"{'quick' if args.quick else 'full'} scenes, {args.trials} trial(s) per class, base seed {args.seed}, "
             f"{'; '.join(settings)}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
