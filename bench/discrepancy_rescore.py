@@ -83,6 +83,8 @@ def _recalibration_decision(top: list, residual_real: bool, stated: dict, bar: s
 
     def null_gains(c):
         if not c.get("null_gains"):
+            if c["recalibration"]:      # not declared whatever its null gains: any stand in
+                return [0.0, 0.0]
             raise _Unchecked
         return c["null_gains"]
     try:
