@@ -13,15 +13,15 @@ the best prediction: ``analysis.declare``). A candidate the rule would check but
 gains the run did not compute (it was not checked there) leaves the decision open ("?").
 ``--spread-null`` re-decides them likewise by ``analysis.declare`` with ``Options.null_bar``
 "spread" (the largest null gain, at least 0, plus 1.5 × their range when the residual is not
-real). ``--recalibration-rule`` re-decides by ``analysis.declare`` with the run's own bar and stop
-65's rule that a viscosity or cohesion fitted within the calibration's search range is not
-declared (``analysis.recalibration``; the stated λ from the row, or the model defaults λ_v 60,
-λ_c 0.1 for rows from before the rows kept them); "?" where the next candidate's null gains
-were not computed. ``--pool`` also prints one table over every file's analyses together (several seeds of
-one benchmark: the issue's larger benchmark counts misses per class over 10 runs), and per class
-whether it meets the issue's bar: a run counts when it names the planted class, fits it within
-25 % of the truth and has its gain interval above zero, and at most one run in 10 may not
-(misses ≤ runs / 10).
+real). ``--recalibration-rule`` re-decides by ``analysis.declare`` with the run's own bar and
+stop 65's rule that a viscosity or cohesion fitted within the calibration's search range is
+not declared (``analysis.recalibration``; the stated λ from the row, or the model defaults λ_v
+60, λ_c 0.1 for rows from before the rows kept them); "?" where the next candidate's null
+gains were not computed. ``--pool`` also prints one table over every file's analyses together
+(several seeds of one benchmark: the issue's larger benchmark counts misses per class over 10
+runs), and per class whether it meets the issue's bar: a run counts when it names the planted
+class, fits it within 25 % of the truth and has its gain interval above zero, and at most one
+run in 10 may not (misses ≤ runs / 10).
 """
 
 from __future__ import annotations
@@ -168,6 +168,7 @@ def bar_line(rows: list) -> str:
         (met if len(rs) - hits <= len(rs) / 10 else missed).append(f"{name} {hits}/{len(rs)}")
     return (f"issue 6's bar (a hit: named right, within 25 %, gain interval > 0; misses ≤ runs / 10): "
             f"met by {', '.join(met) or 'none'}; missed by {', '.join(missed) or 'none'}")
+
 
 if __name__ == "__main__":
     main()

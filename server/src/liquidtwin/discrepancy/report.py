@@ -61,8 +61,9 @@ def markdown(report: dict) -> str:
         params = ", ".join(f"{k}={v:.4g}" for k, v in c["params"].items())
         if c.get("tied"):
             params += f" (same loss from {c['tied'][0]:.4g} to {c['tied'][1]:.4g})"
+        declared = "yes" if c.get("declared") else "no: recalibration" if c.get("not_declared") else ""
         lines.append(f"| {i} | {c['name']} | {params} | {g['mean']:.3f} | {_fmt(g['ci95'])} | {c['heldout_iou_gain']:+.3f} | "
-                     f"{_null_cell(c)} | {_fmt(c.get('null_threshold'))} | {'yes' if c.get('declared') else ('no: recalibration' if c.get('not_declared') else '')} |")
+                     f"{_null_cell(c)} | {_fmt(c.get('null_threshold'))} | {declared} |")
     if report.get("learned"):
         g = report["learned"]["heldout_gain"]
         lines += ["", f"No candidate explains the residual: a minimum-norm learned correction a = W [v, 1] "
