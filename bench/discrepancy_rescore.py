@@ -55,38 +55,25 @@ class _Unchecked(Exception):
     """A candidate the rule would check was not checked against the null in the run."""
 
 
-def _spread_decision(top: list, residual_real: bool) -> str:
-    """``analysis.declare`` with the spread bar on the run's saved gains and null gains (on
-    copies: the rows keep the run's own fields); "?" where it needs null gains not computed."""
-    from liquidtwin.discrepancy.analysis import declare
-
-    def null_gains(c):
-        if not c.get("null_gains"):
-            raise _Unchecked
-        return c["null_gains"]
-    try:
-        chosen = declare([dict(c) for c in top], residual_real, null_gains, bar="spread")
-    except _Unchecked:
-        return "?"
-    return chosen["name"] if chosen else "none"
-
-
 #: The stated λ of rows saved before the rows kept ``stated_params`` (every benchmark scene
 #: states the model defaults, ``sim.pbf``).
 DEFAULT_STATED = {"lambda_v": 60.0, "lambda_c": 0.1}
 
 
-def _recalibration_decision(top: list, residual_real: bool, stated: dict, bar: str) -> str:
-    """``analysis.declare`` with the run's ``bar`` and the recalibration rule (copies)."""
+def _redecide(top: list, residual_real: bool, bar: str, stated: dict | None = None) -> str:
+    """``analysis.declare`` with ``bar`` on the run's saved gains and null gains (on copies: the
+    rows keep the run's own fields), with stop 65's recalibration rule when ``stated`` is given;
+    "?" where it needs null gains the run did not compute. A recalibration cannot be declared
+    whatever its null gains, so it needs none."""
     from liquidtwin.discrepancy.analysis import declare, recalibration
-    top = [dict(c, recalibration=recalibration(c, stated)) for c in top]
+    top = [dict(c, recalibration=recalibration(c, stated)) if stated else dict(c) for c in top]
 
     def null_gains(c):
-        if not c.get("null_gains"):
-            if c["recalibration"]:      # not declared whatever its null gains: any stand in
-                return [0.0, 0.0]
-            raise _Unchecked
-        return c["null_gains"]
+        if c.get("null_gains"):
+            return c["null_gains"]
+        if c.get("recalibration"):
+            return [0.0, 0.0]           # any stand in: it is set aside after its null
+        raise _Unchecked
     try:
         chosen = declare(top, residual_real, null_gains, bar=bar)
     except _Unchecked:
@@ -120,10 +107,9 @@ def main() -> None:
         for row in rows:
             if args.recalibration_rule:
                 was = row["named"]
-                row["named"] = _recalibration_decision(row["candidates"][: TOP],
-                                                       bool(row.get("null", {}).get("residual_real")),
-                                                       row.get("stated_params") or DEFAULT_STATED,
-                                                       row.get("null", {}).get("bar", "magnitude"))
+                row["named"] = _redecide(row["candidates"][: TOP], bool(row.get("null", {}).get("residual_real")),
+                                         row.get("null", {}).get("bar", "magnitude"),
+                                         row.get("stated_params") or DEFAULT_STATED)
                 row["correct"] = row["named"] == row["planted"]
                 if row["named"] != was:
                     print(f"{row['case']['name']}: planted {row['planted']}, named {was}, "
@@ -131,7 +117,7 @@ def main() -> None:
             elif args.signed_null or args.spread_null:
                 was, top = row["named"], row["candidates"][: TOP]
                 row["named"] = (_signed_decision(top) if args.signed_null
-                                else _spread_decision(top, bool(row.get("null", {}).get("residual_real"))))
+                                else _redecide(top, bool(row.get("null", {}).get("residual_real")), "spread"))
                 row["correct"] = row["named"] == row["planted"]
                 print(f"{row['case']['name']}: planted {row['planted']}, named {was}, "
                       f"{'signed' if args.signed_null else 'spread'}-null rule {row['named']}")
@@ -148,27 +134,17 @@ def main() -> None:
         tab = table(pooled)
         print(format_table(tab, f"pooled over {len(args.results)} files ({len(pooled)} analyses; base seeds "
                                 f"{', '.join(str(b) for b in bases)})"))
-        print(bar_line(pooled))
+        print(bar_line(tab))
 
 
-def bar_line(rows: list) -> str:
-    """Issue 6's bar per class over the pooled ``rows``: a run is a hit when it names the planted
-    class and, for an effect, fits it within 25 % of the truth (identified) with its gain
-    interval above zero; a class meets the bar with misses ≤ runs / 10."""
-    from liquidtwin.evaluate.discrepancy import PARAM_TOLERANCE, _classes
+def bar_line(tab: dict) -> str:
+    """Issue 6's bar per class of ``evaluate.discrepancy.table``'s ``tab``: a class meets it
+    when its runs that are not hits (``evaluate.discrepancy.hit``) are ≤ runs / 10."""
     met, missed = [], []
-    for name in _classes():
-        rs = [r for r in rows if r["planted"] == name]
-        if not rs:
-            continue
-        hits = sum(r["correct"] and (name == "none" or (r.get("rel_error", 1e9) <= PARAM_TOLERANCE
-                                                        and r.get("identified", True)
-                                                        and bool(r.get("gain_ci95")) and r["gain_ci95"][0] > 0))
-                   for r in rs)
-        (met if len(rs) - hits <= len(rs) / 10 else missed).append(f"{name} {hits}/{len(rs)}")
+    for name, v in tab["per_class"].items():
+        (met if v["runs"] - v["hits"] <= v["runs"] / 10 else missed).append(f"{name} {v['hits']}/{v['runs']}")
     return (f"issue 6's bar (a hit: named right, within 25 %, gain interval > 0; misses ≤ runs / 10): "
             f"met by {', '.join(met) or 'none'}; missed by {', '.join(missed) or 'none'}")
-
 
 if __name__ == "__main__":
     main()

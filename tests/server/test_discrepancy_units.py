@@ -743,7 +743,7 @@ def test_a_viscosity_or_cohesion_inside_the_calibration_range_is_not_declared():
 
 
 def test_the_benchmark_does_not_credit_an_unidentified_fit():
-    from liquidtwin.evaluate.discrepancy import score, table
+    from liquidtwin.evaluate.discrepancy import hit, score, table
     truth = {"effect": {"name": "blockage", "value": 0.407}}
 
     def result(tied):
@@ -756,6 +756,15 @@ def test_the_benchmark_does_not_credit_an_unidentified_fit():
     tab = table([flat, sharp])
     per = tab["per_class"]["blockage"]
     assert per["within_25pct"] == 1 and per["not_identified"] == 1 and tab["correct"] == 2
+    # the count: a hit is named right, within 25 %, identified, gain interval above zero
+    assert per["hits"] == 1
+    below = score(None, truth, {"decision": "blockage", "candidates": [
+        {"name": "blockage", "value": 0.4, "best_tried": 0.4, "tied": None, "heldout_gain": {"ci95": [-0.1, 2.0]}}]})
+    far = score(None, truth, {"decision": "blockage", "candidates": [
+        {"name": "blockage", "value": 0.7, "best_tried": 0.7, "tied": None, "heldout_gain": {"ci95": [1.0, 2.0]}}]})
+    wrong = score(None, truth, {"decision": "none", "candidates": []})
+    nothing = score(None, {"effect": None}, {"decision": "none", "candidates": []})
+    assert [hit(r) for r in (flat, sharp, below, far, wrong, nothing)] == [False, True, False, False, False, True]
 
 
 def test_re_draws_of_one_rollout_equal_drawing_every_particle_afresh(tmp_path):

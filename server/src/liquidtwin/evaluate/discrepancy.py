@@ -14,6 +14,7 @@ Written: ``results.json`` and ``discrepancy.json`` (with the ``headline``: share
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -155,6 +156,17 @@ def identified(cand: dict) -> bool:
     return not tied or tied[1] - tied[0] <= 2.0 * PARAM_TOLERANCE * abs(cand["value"])
 
 
+def hit(row: dict) -> bool:
+    """One run as the issue counts it: the planted class named and, for an effect, its fit within
+    ``PARAM_TOLERANCE`` of the truth (identified) with its held-out gain interval above zero."""
+    if not row["correct"]:
+        return False
+    if row["planted"] == "none":
+        return True
+    return (row.get("rel_error", math.inf) <= PARAM_TOLERANCE and row.get("identified", True)
+            and bool(row.get("gain_ci95")) and row["gain_ci95"][0] > 0)
+
+
 def table(rows: list) -> dict:
     classes = list(_classes())
     named = classes + ["unexplained"]
@@ -174,7 +186,8 @@ def table(rows: list) -> dict:
                                       for r in rs if "rel_error" in r),
                   "not_identified": sum(1 for r in rs if r.get("identified") is False),
                   "median_rel_error_best_tried": float(np.median(tried)) if tried else None,
-                  "gain_ci_above_0": sum(1 for r in rs if r.get("gain_ci95") and r["gain_ci95"][0] > 0)}
+                  "gain_ci_above_0": sum(1 for r in rs if r.get("gain_ci95") and r["gain_ci95"][0] > 0),
+                  "hits": sum(hit(r) for r in rs)}
     total = sum(v["runs"] for v in per.values())
     right = sum(v["correct"] for v in per.values())
     return {"confusion": conf, "per_class": per, "correct": right, "runs": total}
