@@ -822,3 +822,63 @@ def test_a_few_benchmark_classes_are_the_full_runs_recordings():
         cases = disc_cases(quick=True, trials=2, base_seed=5000, classes=few)
         assert [c.planted for c in cases] == [p for p in few for _ in range(2)]
         assert all(full[c.name] == c for c in cases)
+
+
+def test_a_fill_error_is_fitted_by_the_amount_of_liquid_seen():
+    """``Options.fill_fit="mass"``: the fill-error search minimises the mismatch of the liquid
+    summed over the fitting frames, Σ (log(1 + model cells) − log(1 + observed cells))², not the
+    fitting loss. Here the model's liquid grows with the fill (a blob 2 × (6 + 10 v) cells
+    wide) and the observation is the fill +0.2 (16 cells), but every fill's blob lands at
+    another place — a chaotic pour — and the +0.4 one happens to land on the observed one: the
+    fitting loss takes that fill, the amount takes +0.2. Other candidates keep the loss."""
+    from liquidtwin.discrepancy.analysis import _Evaluator
+
+    F, H, W = 30, 32, 128
+    obs = np.zeros((F, H // CELL, W // CELL), bool)
+    obs[:, 2:4, 4:12] = True                                   # 16 cells: fill +0.2 at columns 4 …
+
+    class Sim:
+        ep = None
+
+        def rollout(self, ext):
+            return ext
+
+        def render(self, traj, frames, ext):
+            v = ext.params.get("value", 0.0) if ext.name == "fill_error" else 0.0
+            width = int(round(6 + 10 * v))
+            start = 4 if abs(v - 0.4) < 1e-9 else 18           # only +0.4 lands on the observed place
+            m = np.zeros((F, H, W), bool)
+            m[:, 2 * CELL:4 * CELL, start * CELL:(start + width) * CELL] = True
+            return m
+
+    Sim.ep = type("Ep", (), {"masks": np.zeros((F, H, W), bool)})()
+    data = _Data([obs], [np.arange(0, F, 2)], [np.arange(1, F, 2)], [np.arange(1, F, 2) // 2])
+    fits = {}
+    for how, mass_fit in (("loss", ()), ("mass", ("fill_error",))):
+        ev = _Evaluator([Sim()], mass_fit=mass_fit)
+        ev.restrict([None])
+        ext, _, trace = fit_candidate("fill_error", lambda e: ev.objective(e, data), {}, FINE)
+        fits[how] = main_value(ext)
+        # the objective is the formula, on the fitting frames only
+        e = Extension("fill_error", {"value": 0.2})
+        n_model = ev.cells(e)[0][data.fit[0]].sum()
+        n_obs = obs[data.fit[0]].sum()
+        assert n_model == n_obs == 16 * len(data.fit[0])
+        expected = 0.0 if how == "mass" else ev.fit_loss(e, data)
+        assert ev.objective(e, data) == pytest.approx(expected, abs=1e-12)
+        e4 = Extension("fill_error", {"value": 0.4})
+        if how == "mass":
+            n4 = ev.cells(e4)[0][data.fit[0]].sum()
+            assert ev.objective(e4, data) == pytest.approx((np.log1p(n4) - np.log1p(n_obs)) ** 2)
+        # any other candidate is fitted by its loss either way
+        drag = Extension("drag", {"c": 1.0})
+        assert ev.objective(drag, data) == ev.fit_loss(drag, data)
+    assert fits["loss"] == pytest.approx(0.4)
+    assert abs(fits["mass"] - 0.2) < 0.03
+
+
+def test_fill_fit_is_checked():
+    assert Options().fill_fit == "mass"
+    assert Options(fill_fit="loss").fill_fit == "loss"
+    with pytest.raises(ValueError, match="fill fit"):
+        Options(fill_fit="volume")

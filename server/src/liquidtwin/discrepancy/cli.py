@@ -48,6 +48,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="also declare a viscosity or cohesion fitted within the calibration's own search range "
                         "(0.75-1.25 x the stated value; the rule before stop 65). By default such a fit is a finer "
                         "calibration, not an effect, and is reported but not declared")
+    p.add_argument("--fill-fit", choices=("mass", "loss"), default="mass",
+                   help="what the fill-error fit minimises: the mismatch of the amount of liquid seen over the "
+                        "fitting frames (mass, the default: a wrong fill changes how much pours) or the fitting loss "
+                        "as every other candidate (loss, the rule before stop 66); its gains and null check use the "
+                        "losses either way")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="calibrate lambda_v, lambda_c by the mean fitting loss of K jittered draws of each trial's "
                         "prediction instead of its one rollout (K rollouts per trial; default 0: off)")
@@ -79,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
                       calibrate=not args.no_calibrate, null_runs=args.null_runs, top=args.top, seed=args.seed,
                       stratify=not args.no_stratify, prediction_jitter=args.prediction_jitter,
                       reference=args.reference, ensemble=args.ensemble, score=args.score,
-                      null_bar=args.null_bar, recalibrations=args.declare_recalibrations,
+                      null_bar=args.null_bar, recalibrations=args.declare_recalibrations, fill_fit=args.fill_fit,
                       calibration_draws=args.calibration_draws,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),

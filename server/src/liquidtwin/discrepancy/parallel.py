@@ -38,14 +38,14 @@ WHAT = "the discrepancy analysis"
 _EV = None
 
 
-def _init(eps, frames, extra_iterations, jitter) -> None:
+def _init(eps, frames, extra_iterations, jitter, mass_fit=()) -> None:
     global _EV
     import torch
 
     from .analysis import _Evaluator
     from .rollout import Simulator
     torch.set_num_threads(1)
-    _EV = _Evaluator([Simulator(e, extra_iterations=extra_iterations, jitter=jitter) for e in eps], None)
+    _EV = _Evaluator([Simulator(e, extra_iterations=extra_iterations, jitter=jitter) for e in eps], None, mass_fit)
     _EV.restrict(frames)
 
 
@@ -69,7 +69,7 @@ def _run(task) -> tuple:
     elif kind == "fit":
         name, rounds, base, cells, fit = args
         data = _Data(cells, fit, None, None)
-        ext, _, _ = fit_candidate(name, lambda e: ev.fit_loss(e, data), base, rounds, ev.upper(name))
+        ext, _, _ = fit_candidate(name, lambda e: ev.objective(e, data), base, rounds, ev.upper(name))
         ev.cells(ext)
     elif kind == "null":
         run, seed_value, base, vary = args
@@ -82,10 +82,12 @@ def _run(task) -> tuple:
 class Workers:
     """``jobs`` spawned processes evaluating for the analysis's :class:`_Evaluator` ``ev``."""
 
-    def __init__(self, ev, eps, frames, jobs: int, extra_iterations: int = 0, jitter: float = 0.0):
+    def __init__(self, ev, eps, frames, jobs: int, extra_iterations: int = 0, jitter: float = 0.0,
+                 mass_fit=()):
         self.ev = ev
         self.jobs = jobs
-        self.pool = procs.pool(jobs, initializer=_init, initargs=(list(eps), list(frames), extra_iterations, jitter))
+        self.pool = procs.pool(jobs, initializer=_init,
+                               initargs=(list(eps), list(frames), extra_iterations, jitter, tuple(mass_fit)))
 
     def _start(self, tasks: list):
         """Hand ``tasks`` to the workers now; returns a call that waits for their results (in
@@ -135,7 +137,7 @@ class Workers:
                 except StopIteration:
                     return
                 if all(ev.has(e) for e in batch):
-                    values = [ev.fit_loss(e, datas[i]) for e in batch]
+                    values = [ev.objective(e, datas[i]) for e in batch]
                     continue
                 waiting[i] = batch
                 depths[i] += 1
@@ -165,7 +167,7 @@ class Workers:
             for i, batch in list(waiting.items()):
                 if all(ev.has(e) for e in batch):
                     del waiting[i]
-                    advance(i, [ev.fit_loss(e, datas[i]) for e in batch])
+                    advance(i, [ev.objective(e, datas[i]) for e in batch])
         if waiting:                     # cannot happen: every wanted point was queued
             raise RuntimeError(f"searches {sorted(waiting)} were left waiting")
 

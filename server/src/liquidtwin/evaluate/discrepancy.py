@@ -93,7 +93,8 @@ def _analyse(job) -> dict:
     return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "best_tried", "tied",
                                                                               "heldout_gain", "single_rollout_gain", "reference",
                                                                               "null_gains", "null_fitted", "declared",
-                                                                              "recalibration", "not_declared", "trace")}
+                                                                              "recalibration", "not_declared", "trace",
+                                                                              "fit_objective")}
                                                          for c in rep["candidates"]]}
 
 
@@ -123,6 +124,9 @@ def configure(p) -> None:
     p.add_argument("--declare-recalibrations", action="store_true",
                    help="the analyses also declare a viscosity or cohesion fitted within the calibration's search "
                         "range (the rule before stop 65; see liquidtwin discrepancy --help)")
+    p.add_argument("--fill-fit", choices=("mass", "loss"), default="mass",
+                   help="what the analyses' fill-error fits minimise (default mass: the amount of liquid seen; loss: "
+                        "the rule before stop 66; see liquidtwin discrepancy --help)")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="the analyses calibrate lambda_v, lambda_c from K jittered draws of each trial "
                         "(default 0: off; see liquidtwin discrepancy --help)")
@@ -223,7 +227,7 @@ def run(args) -> int:
     opts = {"null_runs": args.null_runs, "calibrate": not args.no_calibrate, "stratify": not args.no_stratify,
             "prediction_jitter": args.prediction_jitter, "reference": args.reference, "ensemble": args.ensemble,
             "calibration_draws": args.calibration_draws, "score": args.score,
-            "null_bar": args.null_bar, "recalibrations": args.declare_recalibrations}
+            "null_bar": args.null_bar, "recalibrations": args.declare_recalibrations, "fill_fit": args.fill_fit}
     from ..discrepancy import Options
     try:
         Options(**opts)                 # a bad combination stops here, before any recording is made
@@ -261,6 +265,7 @@ def run(args) -> int:
                  else ["gains from one rollout each"])
     settings += [f"{args.null_bar} null bar"]
     settings += ["recalibrations declared"] if args.declare_recalibrations else []
+    settings += ["fill errors fitted by the loss"] if args.fill_fit == "loss" else []
     settings += [f"calibrated on {args.calibration_draws} draws"] if args.calibration_draws else []
     note = (f"{'quick' if args.quick else 'full'} scenes, {args.trials} trial(s) per class, base seed {args.seed}, "
             f"{'; '.join(settings)}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
