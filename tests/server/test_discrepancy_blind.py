@@ -35,7 +35,7 @@ def recordings(tmp_path_factory):
 def test_nothing_hidden_is_none_and_the_cli_writes_the_report(recordings, tmp_path):
     out = tmp_path / "report"
     code = cli_main(["discrepancy", str(recordings["none"]), "--out", str(out), "--no-progress",
-                     "--candidates", "drag", "camera_offset", "--top", "2"])
+                     "--candidates", "drag", "fill_error", "camera_offset", "--top", "2"])
     assert code == 0
     report = json.loads((out / "report.json").read_text())
     assert _truth(recordings["none"]) is None
@@ -48,6 +48,11 @@ def test_nothing_hidden_is_none_and_the_cli_writes_the_report(recordings, tmp_pa
         lo, hi = c["heldout_gain"]["ci95"]
         assert lo <= c["heldout_gain"]["mean"] <= hi and set(c) >= {"name", "params", "heldout_gain", "evidence"}
     assert report["split"]["fit_frames"] > 0 and report["split"]["held_out_frames"] > 0
+    # the fill error's search minimised the liquid's amount mismatch; its trace keeps both values
+    fill = _candidate(report, "fill_error")
+    assert fill["fit_objective"] == "mass" and _candidate(report, "drag")["fit_objective"] == "loss"
+    assert fill["trace"] and all({"fit_loss", "mass_mismatch"} <= set(t) for t in fill["trace"])
+    assert min(fill["trace"], key=lambda t: t["mass_mismatch"])["params"]["value"] == pytest.approx(fill["best_tried"])
     assert report["model"]["name"] == "none" and report["extended"]["name"] == "none"
     assert json.loads((out / "model.json").read_text())["name"] == "none"
     for f in ("report.md", "iou_over_time.png", "residual_maps.png", "candidates.png"):

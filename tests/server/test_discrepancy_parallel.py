@@ -144,7 +144,7 @@ class _Cache:
     """The evaluator's side of ``Workers.fit``: a cache of extension → loss."""
 
     def __init__(self, objective):
-        self.objective, self.store, self.read = objective, {}, 0
+        self.loss_of, self.store, self.read = objective, {}, 0
         self.key = staticmethod(analysis._key)
 
     def has(self, ext):
@@ -154,9 +154,9 @@ class _Cache:
         self.read += 1
         for k, (ext, _) in entries.items():
             assert k not in self.store, "a point was drawn twice"
-            self.store[k] = self.objective(ext)
+            self.store[k] = self.loss_of(ext)
 
-    def fit_loss(self, ext, data):
+    def objective(self, ext, data):
         return self.store[analysis._key(ext)]
 
     def entries(self, name):
@@ -193,3 +193,25 @@ def test_points_of_a_search_are_drawn_at_once_and_the_fit_is_the_serial_one():
             ext, loss, trace = fit_candidate(name, cached, {}, rounds)
             assert loss == objective(ext) and len(trace) >= 4
         assert len(cache.store) == len(w.pool.log)
+
+
+def test_the_workers_fit_the_fill_error_by_the_same_objective(monkeypatch):
+    """``Options.fill_fit``: the workers' evaluators are built with the analysis's mass-fitted
+    candidates, so their searches visit the points the analysis's own searches do."""
+    from liquidtwin import procs
+    from liquidtwin.discrepancy import parallel
+
+    started = {}
+    monkeypatch.setattr(procs, "pool", lambda jobs, initializer, initargs: started.update(init=initializer, args=initargs))
+    monkeypatch.setattr(parallel, "_EV", None)          # this process's, put back afterwards
+    threads = torch.get_num_threads()                   # the worker's start sets one thread
+    try:
+        ev = analysis._Evaluator([], mass_fit=("fill_error",))
+        parallel.Workers(ev, [], [], 2, 0, 0.0, ev.mass_fit)
+        started["init"](*started["args"])
+        assert parallel._EV.mass_fit == {"fill_error"}
+        parallel.Workers(ev, [], [], 2)
+        started["init"](*started["args"])
+        assert parallel._EV.mass_fit == frozenset()
+    finally:
+        torch.set_num_threads(threads)

@@ -748,9 +748,9 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
     held_base_iou, _ = _held(base_iou, data)
     def scored(name, rounds):
         ext, _, trace = fit_candidate(name, lambda e: ev.objective(e, data), base.base, rounds, ev.upper(name))
-        fit_loss = ev.fit_loss(ext, data)
-        if name in ev.mass_fit:       # the search's values are mass mismatches; the trace keeps both
-            trace = [(p, ev.fit_loss(Extension(name, p, base.base), data), v) for p, v in trace]
+        fit_loss, mass = ev.fit_loss(ext, data), name in ev.mass_fit
+        # a mass-fitted search's values are mass mismatches: the trace keeps both
+        losses = [ev.fit_loss(Extension(name, p, base.base), data) if mass else v for p, v in trace]
         held_ext, _ = _held(ev.losses(ext, data.cells), data)
         held_iou, _ = _held(ev.iou(ext), data)
         gain = (held_base if ref_of(name) == "base" else held_ref) - held_ext
@@ -760,9 +760,9 @@ def _stages(opt, eps, sims, ev, pool, frames, data, split, timing, bar) -> dict:
                 "heldout_iou_gain": float(held_iou.mean() - held_base_iou.mean()),
                 "best_tried": main_value(Extension(name, min(trace, key=lambda t: t[1])[0], base.base)),
                 "tied": tied_range(name, trace, base.base),
-                "trace": [{"params": t[0], "fit_loss": t[1], **({"mass_mismatch": t[2]} if len(t) > 2 else {})}
-                          for t in trace],
-                "fit_objective": "mass" if name in ev.mass_fit else "loss",
+                "trace": [{"params": p, "fit_loss": loss, **({"mass_mismatch": v} if mass else {})}
+                          for (p, v), loss in zip(trace, losses)],
+                "fit_objective": "mass" if mass else "loss",
                 "fit_loss": fit_loss, "evaluations": len(trace), "refined": rounds > COARSE,
                 "evidence": evid.get(name, {}), "_ext": ext}
 
