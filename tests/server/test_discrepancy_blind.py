@@ -35,7 +35,7 @@ def recordings(tmp_path_factory):
 def test_nothing_hidden_is_none_and_the_cli_writes_the_report(recordings, tmp_path):
     out = tmp_path / "report"
     code = cli_main(["discrepancy", str(recordings["none"]), "--out", str(out), "--no-progress",
-                     "--candidates", "drag", "fill_error", "camera_offset", "--top", "2"])
+                     "--candidates", "drag", "fill_error", "camera_offset", "--top", "2", "--fill-fit", "mass"])
     assert code == 0
     report = json.loads((out / "report.json").read_text())
     assert _truth(recordings["none"]) is None

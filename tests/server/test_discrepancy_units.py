@@ -878,7 +878,7 @@ def test_a_fill_error_is_fitted_by_the_amount_of_liquid_seen():
 
 
 def test_fill_fit_is_checked():
-    assert Options().fill_fit == "mass"
-    assert Options(fill_fit="loss").fill_fit == "loss"
+    assert Options().fill_fit == "loss"
+    assert Options(fill_fit="mass").fill_fit == "mass"
     with pytest.raises(ValueError, match="fill fit"):
         Options(fill_fit="volume")

@@ -160,10 +160,11 @@ class Options:
     against its null as before but not declared: the calibrated base could have taken that
     value, so it is a finer calibration, not an effect. Only with ``calibrate``;
     fill_fit: what the fill-error candidate's search minimises (:meth:`_Evaluator.objective`),
-    on the recording and on the null realisations alike: ``"mass"`` (the default), the
-    mismatch of the amount of liquid seen over the fitting frames; ``"loss"``, the fitting loss
-    as every other candidate (the rule before stop 66). Its ranking, gains and null check
-    use the fitting and held-out losses either way."""
+    on the recording and on the null realisations alike: ``"loss"`` (the default), the fitting
+    loss as every other candidate; ``"mass"``, the mismatch of the amount of liquid seen over
+    the fitting frames (tried at stop 66 and not adopted: its fits were no nearer the truth,
+    README, "The amount of liquid does not show a fill error"). Its ranking, gains and null
+    check use the fitting and held-out losses either way."""
 
     camera: str | None = None
     candidates: tuple = CANDIDATES
@@ -186,7 +187,7 @@ class Options:
     score: str = "energy"
     null_bar: str = "spread"
     recalibrations: bool = False
-    fill_fit: str = "mass"
+    fill_fit: str = "loss"
 
     def __post_init__(self):
         bad = [c for c in self.candidates if c not in LIBRARY]
@@ -357,13 +358,16 @@ class _Evaluator:
         """What a candidate's search minimises: :meth:`mass_mismatch` for the ``mass_fit``
         candidates, else :meth:`fit_loss`.
 
-        Why the amount for a fill error (``Options.fill_fit``): a wrong fill changes how much
-        liquid pours, and the fitting loss of a chaotic pour moves with its shape as much as
-        with its amount. On the six hold pours of stop 65's seeds with a planted fill error, the
-        loss's single rollouts at neighbouring fills differ by as much as 0.18 (0.50 at +5 %,
-        0.32 at +10 %, seed 17000) and its fits landed 0.15 to 0.28 from the truth on five of
-        the six (``bench/results/discrepancy_quick_seed*_stop65.json``); the liquid summed over
-        the fitting frames averages that chaos over every frame."""
+        Why try the amount for a fill error (``Options.fill_fit="mass"``): a wrong fill changes
+        how much liquid pours, and the fitting loss of a chaotic pour moves with its shape as
+        much as with its amount. On the six hold pours of stop 65's seeds with a planted fill
+        error, the loss's single rollouts at neighbouring fills differ by as much as 0.18 (0.50
+        at +5 %, 0.32 at +10 %, seed 17000) and its fits landed 0.15 to 0.28 from the truth on
+        five of the six (``bench/results/discrepancy_quick_seed*_stop65.json``). Summing the
+        liquid over the fitting frames did not help (stop 66): on these pours the amount the
+        camera sees differs from the model's as much where nothing is hidden as where the fill
+        is 12-27 % off, so its fits were no nearer the truth (README, "The amount of liquid does
+        not show a fill error"). Not the default."""
         return self.mass_mismatch(ext, data) if ext.name in self.mass_fit else self.fit_loss(ext, data)
 
 

@@ -48,11 +48,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="also declare a viscosity or cohesion fitted within the calibration's own search range "
                         "(0.75-1.25 x the stated value; the rule before stop 65). By default such a fit is a finer "
                         "calibration, not an effect, and is reported but not declared")
-    p.add_argument("--fill-fit", choices=("mass", "loss"), default="mass",
-                   help="what the fill-error fit minimises: the mismatch of the amount of liquid seen over the "
-                        "fitting frames (mass, the default: a wrong fill changes how much pours) or the fitting loss "
-                        "as every other candidate (loss, the rule before stop 66); its gains and null check use the "
-                        "losses either way")
+    p.add_argument("--fill-fit", choices=("mass", "loss"), default="loss",
+                   help="what the fill-error fit minimises: the fitting loss as every other candidate (loss, the "
+                        "default) or the mismatch of the amount of liquid seen over the fitting frames (mass: tried "
+                        "at stop 66, its fits were no nearer the truth); its gains and null check use the losses "
+                        "either way")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="calibrate lambda_v, lambda_c by the mean fitting loss of K jittered draws of each trial's "
                         "prediction instead of its one rollout (K rollouts per trial; default 0: off)")

@@ -94,7 +94,7 @@ def _analyse(job) -> dict:
                                                                               "heldout_gain", "single_rollout_gain", "reference",
                                                                               "null_gains", "null_fitted", "declared",
                                                                               "recalibration", "not_declared", "trace",
-                                                                              "fit_objective")}
+                                                                              "fit_objective", "evidence")}
                                                          for c in rep["candidates"]]}
 
 
@@ -124,9 +124,9 @@ def configure(p) -> None:
     p.add_argument("--declare-recalibrations", action="store_true",
                    help="the analyses also declare a viscosity or cohesion fitted within the calibration's search "
                         "range (the rule before stop 65; see liquidtwin discrepancy --help)")
-    p.add_argument("--fill-fit", choices=("mass", "loss"), default="mass",
-                   help="what the analyses' fill-error fits minimise (default mass: the amount of liquid seen; loss: "
-                        "the rule before stop 66; see liquidtwin discrepancy --help)")
+    p.add_argument("--fill-fit", choices=("mass", "loss"), default="loss",
+                   help="what the analyses' fill-error fits minimise (default loss; mass: the amount of liquid seen, "
+                        "tried at stop 66; see liquidtwin discrepancy --help)")
     p.add_argument("--calibration-draws", type=int, default=0, metavar="K",
                    help="the analyses calibrate lambda_v, lambda_c from K jittered draws of each trial "
                         "(default 0: off; see liquidtwin discrepancy --help)")
@@ -265,7 +265,7 @@ def run(args) -> int:
                  else ["gains from one rollout each"])
     settings += [f"{args.null_bar} null bar"]
     settings += ["recalibrations declared"] if args.declare_recalibrations else []
-    settings += ["fill errors fitted by the loss"] if args.fill_fit == "loss" else []
+    settings += ["fill errors fitted by the amount of liquid"] if args.fill_fit == "mass" else []
     settings += [f"calibrated on {args.calibration_draws} draws"] if args.calibration_draws else []
     note = (f"{'quick' if args.quick else 'full'} scenes, {args.trials} trial(s) per class, base seed {args.seed}, "
             f"{'; '.join(settings)}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
