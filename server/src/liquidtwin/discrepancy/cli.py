@@ -48,6 +48,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="also declare a viscosity or cohesion fitted within the calibration's own search range "
                         "(0.75-1.25 x the stated value; the rule before stop 65). By default such a fit is a finer "
                         "calibration, not an effect, and is reported but not declared")
+    p.add_argument("--declare-sub-frame-offsets", action="store_true",
+                   help="also declare a time offset fitted shorter than one frame period of the camera (the rule "
+                        "before stop 66). By default such a fit is reported but not declared: an image is stamped "
+                        "once per frame, and physics that starts a pour a little sooner or later fits one")
     p.add_argument("--fill-fit", choices=("mass", "loss"), default="loss",
                    help="what the fill-error fit minimises: the fitting loss as every other candidate (loss, the "
                         "default) or the mismatch of the amount of liquid seen over the fitting frames (mass: tried "
@@ -85,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
                       stratify=not args.no_stratify, prediction_jitter=args.prediction_jitter,
                       reference=args.reference, ensemble=args.ensemble, score=args.score,
                       null_bar=args.null_bar, recalibrations=args.declare_recalibrations, fill_fit=args.fill_fit,
+                      sub_frame_offsets=args.declare_sub_frame_offsets,
                       calibration_draws=args.calibration_draws,
                       jobs=args.jobs, **{k: v for k, v in (("extra_iterations", args.extra_iterations),
                                                             ("pose_smoothing_s", args.pose_smoothing),

@@ -61,7 +61,8 @@ def markdown(report: dict) -> str:
         params = ", ".join(f"{k}={v:.4g}" for k, v in c["params"].items())
         if c.get("tied"):
             params += f" (same loss from {c['tied'][0]:.4g} to {c['tied'][1]:.4g})"
-        declared = "yes" if c.get("declared") else "no: recalibration" if c.get("not_declared") else ""
+        declared = ("yes" if c.get("declared") else "" if not c.get("not_declared")
+                    else "no: within a frame" if c.get("sub_frame") else "no: recalibration")
         lines.append(f"| {i} | {c['name']} | {params} | {g['mean']:.3f} | {_fmt(g['ci95'])} | {c['heldout_iou_gain']:+.3f} | "
                      f"{_null_cell(c)} | {_fmt(c.get('null_threshold'))} | {declared} |")
     if report.get("learned"):
@@ -97,6 +98,8 @@ def markdown(report: dict) -> str:
                  if _ref_kind(report) != "base" else "")
               + (". A viscosity or cohesion fitted within the calibration's own search range is a finer "
                  "calibration and is not declared" if not report.get("options", {}).get("recalibrations") else "")
+              + (". A time offset shorter than one frame period of the camera is not declared"
+                 if not report.get("options", {}).get("sub_frame_offsets") else "")
               + ".", "",
               "Time per stage (s): " + ", ".join(f"{k} {v}" for k, v in report["timing_s"].items()), ""]
     return "\n".join(lines)

@@ -89,12 +89,12 @@ def _analyse(job) -> dict:
     torch.set_num_threads(1)
     from ..discrepancy import Options, analyse
     rep = analyse([path], out, options=Options(**opts))
-    keep = ("decision", "baseline", "extended", "reference", "null", "timing_s", "evaluations", "stated_params")
+    keep = ("decision", "baseline", "extended", "reference", "null", "timing_s", "evaluations", "stated_params", "frame_s")
     return {k: rep[k] for k in keep} | {"candidates": [{k: c.get(k) for k in ("name", "params", "value", "best_tried", "tied",
                                                                               "heldout_gain", "single_rollout_gain", "reference",
                                                                               "null_gains", "null_fitted", "declared",
                                                                               "recalibration", "not_declared", "trace",
-                                                                              "fit_objective", "evidence")}
+                                                                              "fit_objective", "evidence", "sub_frame")}
                                                          for c in rep["candidates"]]}
 
 
@@ -124,6 +124,9 @@ def configure(p) -> None:
     p.add_argument("--declare-recalibrations", action="store_true",
                    help="the analyses also declare a viscosity or cohesion fitted within the calibration's search "
                         "range (the rule before stop 65; see liquidtwin discrepancy --help)")
+    p.add_argument("--declare-sub-frame-offsets", action="store_true",
+                   help="the analyses also declare a time offset shorter than one frame period (the rule before "
+                        "stop 66; see liquidtwin discrepancy --help)")
     p.add_argument("--fill-fit", choices=("mass", "loss"), default="loss",
                    help="what the analyses' fill-error fits minimise (default loss; mass: the amount of liquid seen, "
                         "tried at stop 66; see liquidtwin discrepancy --help)")
@@ -227,7 +230,8 @@ def run(args) -> int:
     opts = {"null_runs": args.null_runs, "calibrate": not args.no_calibrate, "stratify": not args.no_stratify,
             "prediction_jitter": args.prediction_jitter, "reference": args.reference, "ensemble": args.ensemble,
             "calibration_draws": args.calibration_draws, "score": args.score,
-            "null_bar": args.null_bar, "recalibrations": args.declare_recalibrations, "fill_fit": args.fill_fit}
+            "null_bar": args.null_bar, "recalibrations": args.declare_recalibrations, "fill_fit": args.fill_fit,
+            "sub_frame_offsets": args.declare_sub_frame_offsets}
     from ..discrepancy import Options
     try:
         Options(**opts)                 # a bad combination stops here, before any recording is made
@@ -249,7 +253,7 @@ def run(args) -> int:
         rows.append(score(case, truth, res) | {"case": case.as_dict(), "timing_s": res["timing_s"],
                                                "baseline": res["baseline"], "extended": res["extended"],
                                                "reference": res["reference"], "null": res["null"],
-                                               "stated_params": res["stated_params"],
+                                               "stated_params": res["stated_params"], "frame_s": res["frame_s"],
                                                "candidates": res["candidates"]})
         bar.update()
     bar.close()
@@ -266,6 +270,7 @@ def run(args) -> int:
     settings += [f"{args.null_bar} null bar"]
     settings += ["recalibrations declared"] if args.declare_recalibrations else []
     settings += ["fill errors fitted by the amount of liquid"] if args.fill_fit == "mass" else []
+    settings += ["sub-frame time offsets declared"] if args.declare_sub_frame_offsets else []
     settings += [f"calibrated on {args.calibration_draws} draws"] if args.calibration_draws else []
     note = (f"{'quick' if args.quick else 'full'} scenes, {args.trials} trial(s) per class, base seed {args.seed}, "
             f"{'; '.join(settings)}; analysis time per recording median {np.median(t):.0f} s (max {max(t):.0f} s)")
