@@ -57,4 +57,6 @@ def test_nothing_hidden_is_none_and_the_cli_writes_the_report(recordings, tmp_pa
     assert json.loads((out / "model.json").read_text())["name"] == "none"
     for f in ("report.md", "iou_over_time.png", "residual_maps.png", "candidates.png"):
         assert (out / f).stat().st_size > 1000
-    assert "Decision: `none`" in (out / "report.md").read_text()
+    md = (out / "report.md").read_text()
+    assert "Decision: `none`" in md and "shorter than one frame period of the camera is not declared" in md
+    assert report["frame_s"] == pytest.approx(1 / 30, rel=0.01)          # the generator's 30 Hz masks

@@ -742,6 +742,29 @@ def test_a_viscosity_or_cohesion_inside_the_calibration_range_is_not_declared():
     assert declare(top, False, lambda c: [0.0, 0.01], bar="spread") is top[0]
 
 
+def test_a_time_offset_within_one_frame_is_not_declared():
+    """A time offset fitted shorter than one frame period (SUB_FRAME × frame_s) is checked
+    against its null as any other, but not declared; the next candidate can be. A longer
+    offset of either sign, or any other candidate, is untouched."""
+    from liquidtwin.discrepancy.analysis import SUB_FRAME, sub_frame
+    frame = 1.0 / 30.0
+    assert sub_frame({"name": "time_offset", "value": -0.018}, frame)
+    assert sub_frame({"name": "time_offset", "value": 0.028}, frame)
+    assert not sub_frame({"name": "time_offset", "value": SUB_FRAME * frame}, frame)
+    assert not sub_frame({"name": "time_offset", "value": -0.06}, frame)
+    assert not sub_frame({"name": "camera_offset", "value": 0.01}, frame)
+    assert not sub_frame({"name": "time_offset", "value": 0.018}, 0.0)     # no frame period known
+
+    def cand(name, mean, short):
+        return {"name": name, "heldout_gain": {"mean": mean, "ci95": [mean / 2, 2 * mean]}, "sub_frame": short}
+    top = [cand("time_offset", 0.158, True), cand("cohesion", 0.12, False)]
+    chosen = declare(top, False, lambda c: [0.0, 0.01], bar="spread")
+    assert chosen is top[1] and top[0]["declared"] is False and "frame" in top[0]["not_declared"]
+    assert top[0]["null_gains"] == [0.0, 0.01]
+    top = [cand("time_offset", 0.158, False), cand("cohesion", 0.12, False)]
+    assert declare(top, False, lambda c: [0.0, 0.01], bar="spread") is top[0]
+
+
 def test_the_benchmark_does_not_credit_an_unidentified_fit():
     from liquidtwin.evaluate.discrepancy import hit, score, table
     truth = {"effect": {"name": "blockage", "value": 0.407}}
@@ -878,7 +901,7 @@ def test_a_fill_error_is_fitted_by_the_amount_of_liquid_seen():
 
 
 def test_fill_fit_is_checked():
-    assert Options().fill_fit == "loss"
+    assert Options().fill_fit == "loss" and Options().sub_frame_offsets is False
     assert Options(fill_fit="mass").fill_fit == "mass"
     with pytest.raises(ValueError, match="fill fit"):
         Options(fill_fit="volume")
