@@ -373,7 +373,7 @@ class _Evaluator:
         five of the six (``bench/results/discrepancy_quick_seed*_stop65.json``). Summing the
         liquid over the fitting frames did not help (stop 66): on these pours the amount the
         camera sees differs from the model's as much where nothing is hidden as where the fill
-        is 12-27 % off, so its fits were no nearer the truth (README, "The amount of liquid does
+        is 12-25 % high, so its fits were no nearer the truth (README, "The amount of liquid does
         not show a fill error"). Not the default."""
         return self.mass_mismatch(ext, data) if ext.name in self.mass_fit else self.fit_loss(ext, data)
 
