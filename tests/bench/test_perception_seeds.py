@@ -1,0 +1,67 @@
+"""bench/perception_seeds.py: the findings counted seed by seed, on hand-made results of
+`evaluate perception` whose orderings are known."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.perception_seeds import baseline_ratios, fusion, table, temporal  # noqa: E402
+
+
+def _doc(seed, aucs, base=0.05):
+    """aucs: {(kind, fusion): test AUC} of grey + flow networks."""
+    return {"seed": seed, "baseline": {"test": {"0": base}},
+            "results": [{"kind": k, "input_type": "grey_flow", "fusion": f, "test": {"0": v}}
+                        for (k, f), v in aucs.items()]}
+
+
+# seed 0: LSTM > MF > FCN on both fusions, late beats early for every kind;
+# seed 1: MF-FCN below FCN on early fusion, early beats late for the FCN only;
+# seed 2: lacks the late MF-FCN (a run that trained fewer networks).
+DOCS = [
+    _doc(0, {("fcn", "early"): 0.10, ("fcn", "late"): 0.20, ("mf_fcn", "early"): 0.15, ("mf_fcn", "late"): 0.25,
+             ("lstm_fcn", "early"): 0.30, ("lstm_fcn", "late"): 0.40}),
+    _doc(1, {("fcn", "early"): 0.20, ("fcn", "late"): 0.10, ("mf_fcn", "early"): 0.12, ("mf_fcn", "late"): 0.30,
+             ("lstm_fcn", "early"): 0.25, ("lstm_fcn", "late"): 0.35}, base=0.04),
+    _doc(2, {("fcn", "early"): 0.10, ("fcn", "late"): 0.20, ("mf_fcn", "early"): 0.15,
+             ("lstm_fcn", "early"): 0.30, ("lstm_fcn", "late"): 0.40}),
+]
+
+
+def test_orderings_are_counted_per_seed():
+    tab = table(DOCS)
+    assert tab[("mf_fcn", "grey_flow", "late")] == [0.25, 0.30, None]
+    temp = {t["fusion"]: t for t in temporal(tab, 3)}
+    assert (temp["early"]["seeds"], temp["early"]["lstm>mf>fcn"], temp["early"]["mf>fcn"]) == (3, 2, 2)
+    assert (temp["early"]["lstm>mf"], temp["early"]["lstm>fcn"]) == (3, 3)
+    assert (temp["late"]["seeds"], temp["late"]["lstm>mf>fcn"]) == (2, 2)        # seed 2 has no late MF-FCN
+    assert temp["early"]["means"] == pytest.approx([0.4 / 3, 0.42 / 3, 0.85 / 3])
+    fus = {t["kind"]: t for t in fusion(tab, 3)}
+    assert (fus["fcn"]["early>late"], fus["fcn"]["seeds"]) == (1, 3)
+    assert (fus["mf_fcn"]["early>late"], fus["mf_fcn"]["seeds"]) == (0, 2)
+    assert fus["lstm_fcn"]["early>late"] == 0
+    ratios = baseline_ratios(tab, DOCS)
+    assert ratios[("fcn", "grey_flow", "early")] == pytest.approx(2.0)            # 0.10 / 0.05 on seeds 0 and 2
+    assert ratios[("mf_fcn", "grey_flow", "early")] == pytest.approx(3.0)         # 0.12 / 0.04 on seed 1
+
+
+def test_script_prints_the_counts_and_refuses_one_seed(tmp_path):
+    files = []
+    for d in DOCS:
+        f = tmp_path / f"seed{d['seed']}.json"
+        f.write_text(json.dumps(d))
+        files.append(str(f))
+    out = subprocess.run([sys.executable, str(ROOT / "bench" / "perception_seeds.py"), *files,
+                          "--json", str(tmp_path / "t.json")], capture_output=True, text=True, check=True).stdout
+    assert "grey_flow/early: 2/3" in out and "fcn/grey_flow: 1/3" in out
+    assert json.loads((tmp_path / "t.json").read_text())["test_auc"]["mf_fcn/grey_flow/late"] == [0.25, 0.30, None]
+    bad = subprocess.run([sys.executable, str(ROOT / "bench" / "perception_seeds.py"), files[0]],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "at least two seeds" in bad.stderr
