@@ -13,7 +13,8 @@ dataset happens to show is told from one that holds:
 * the baseline: each network's test AUC over the optical-flow baseline's on the same pours,
   the smallest ratio over the seeds.
 
-    python bench/perception_seeds.py seed0/perception.json seed1/perception.json seed2/perception.json [--json OUT]
+    python bench/perception_seeds.py seed0/perception.json seed1/perception.json seed2/perception.json \
+        [--json OUT] [--plot OUT.png]
 """
 
 from __future__ import annotations
@@ -76,10 +77,36 @@ def baseline_ratios(tab: dict, docs: list[dict]) -> dict:
     return {k: min(v / b for v, b in zip(vals, base) if v is not None) for k, vals in tab.items()}
 
 
+def plot(tab: dict, seeds: list, base: list, path: Path) -> None:
+    """One row per network: its test AUC on every seed (dots, one colour per seed) and their
+    mean (bar); the flow baseline of every seed as a dashed line of its colour."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    keys = list(tab)
+    fig, ax = plt.subplots(figsize=(7, 0.45 * len(keys) + 1.4))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    means = [100 * np.mean([v for v in tab[k] if v is not None]) for k in keys]
+    ax.barh(range(len(keys)), means, color="0.85", label="mean")
+    for s, seed in enumerate(seeds):
+        c = colours[s % len(colours)]
+        pts = [(100 * tab[k][s], i) for i, k in enumerate(keys) if tab[k][s] is not None]
+        ax.scatter([p[0] for p in pts], [p[1] for p in pts], color=c, zorder=3, label=f"seed {seed}")
+        ax.axvline(100 * base[s], color=c, ls="--", lw=1)
+    ax.set_yticks(range(len(keys)), ["/".join(k) for k in keys])
+    ax.invert_yaxis()
+    ax.set_xlabel("test AUC %, 0 px slack, unseen containers (dashed: flow baseline)")
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("results", type=Path, nargs="+", help="perception.json, one per dataset seed")
     p.add_argument("--json", type=Path, default=None, help="also write the tables here")
+    p.add_argument("--plot", type=Path, default=None, help="also draw every network's AUC per seed (PNG)")
     args = p.parse_args(argv)
     docs = [json.loads(f.read_text()) for f in args.results]
     if len(docs) < 2:
@@ -107,6 +134,8 @@ def main(argv=None) -> int:
         for t in fus:
             print(f"  {t['kind']}/{t['input']}: {t['early>late']}/{t['seeds']}; "
                   f"means early {100 * t['mean_early']:.1f}, late {100 * t['mean_late']:.1f}")
+    if args.plot:
+        plot(tab, seeds, [d["baseline"]["test"]["0"] for d in docs], args.plot)
     if args.json:
         args.json.write_text(json.dumps({"seeds": seeds, "files": [str(f) for f in args.results],
                                          "baseline": [d["baseline"]["test"]["0"] for d in docs],

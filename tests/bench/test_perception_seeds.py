@@ -59,8 +59,10 @@ def test_script_prints_the_counts_and_refuses_one_seed(tmp_path):
         f.write_text(json.dumps(d))
         files.append(str(f))
     out = subprocess.run([sys.executable, str(ROOT / "bench" / "perception_seeds.py"), *files,
-                          "--json", str(tmp_path / "t.json")], capture_output=True, text=True, check=True).stdout
+                          "--json", str(tmp_path / "t.json"),
+                          "--plot", str(tmp_path / "t.png")], capture_output=True, text=True, check=True).stdout
     assert "grey_flow/early: 2/3" in out and "fcn/grey_flow: 1/3" in out
+    assert (tmp_path / "t.png").read_bytes()[:4] == b"\x89PNG"
     assert json.loads((tmp_path / "t.json").read_text())["test_auc"]["mf_fcn/grey_flow/late"] == [0.25, 0.30, None]
     bad = subprocess.run([sys.executable, str(ROOT / "bench" / "perception_seeds.py"), files[0]],
                          capture_output=True, text=True)
