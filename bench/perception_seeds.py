@@ -1,8 +1,8 @@
 """The thesis's perception findings checked over several datasets: a table from the results of
 ``liquidtwin evaluate perception`` run once per dataset seed (their ``perception.json``).
 
-One results file per seed (``--seed S``: the dataset's pours and the networks' training
-both change). Per network: the test AUC (0 px slack, unseen containers) on every seed and
+Results files of one seed (``--seed S``: the dataset's pours and the networks' training
+both change) are merged: several runs may each have trained some of its networks. Per network: the test AUC (0 px slack, unseen containers) on every seed and
 their mean. Then each finding of issue 8, counted seed by seed, so an ordering that one
 dataset happens to show is told from one that holds:
 
@@ -32,6 +32,25 @@ def _key(r: dict) -> tuple:
     return r["kind"], r["input_type"], r["fusion"]
 
 
+def merge_by_seed(docs: list[dict]) -> list[dict]:
+    """One doc per seed (first-seen order): the results of every run of that seed together.
+    Runs of one seed must agree on the baseline (the same dataset) and not train a network twice."""
+    out: dict = {}
+    for d in docs:
+        seed = d.get("seed")
+        if seed not in out:
+            out[seed] = {"seed": seed, "baseline": d["baseline"], "results": []}
+        m = out[seed]
+        if abs(m["baseline"]["test"]["0"] - d["baseline"]["test"]["0"]) > 1e-12:
+            raise SystemExit(f"two runs of seed {seed} have different baselines: not the same dataset")
+        have = {_key(r) for r in m["results"]}
+        twice = [r for r in d["results"] if _key(r) in have]
+        if twice:
+            raise SystemExit(f"seed {seed}: {'/'.join(_key(twice[0]))} is in two of the given runs")
+        m["results"] += d["results"]
+    return list(out.values())
+
+
 def table(docs: list[dict]) -> dict:
     """{network key: [test AUC (0 px) per doc, None where that doc lacks it]} in first-seen order."""
     keys = list(dict.fromkeys(_key(r) for d in docs for r in d["results"]))
@@ -40,20 +59,37 @@ def table(docs: list[dict]) -> dict:
 
 
 def temporal(tab: dict, n: int) -> list[dict]:
-    """Per (input, fusion) with all three kinds: seeds where LSTM-FCN > MF-FCN > FCN, and per pair."""
+    """Per (input, fusion) trained as FCN and LSTM-FCN: seeds where LSTM-FCN > FCN; with the
+    MF-FCN too, seeds where LSTM-FCN > MF-FCN > FCN and each of its pairs (None without it)."""
     out = []
     for inp, fus in dict.fromkeys((k[1], k[2]) for k in tab):
-        rows = [tab.get((kind, inp, fus)) for kind in KINDS]
-        if any(r is None for r in rows):
+        f, m, lstm = (tab.get((kind, inp, fus)) for kind in KINDS)
+        if f is None or lstm is None:
             continue
+        rows = [f, lstm] if m is None else [f, m, lstm]
         seeds = [s for s in range(n) if all(r[s] is not None for r in rows)]
-        f, m, lstm = ([r[s] for s in seeds] for r in rows)
+        fv, lv = [f[s] for s in seeds], [lstm[s] for s in seeds]
+        mv = None if m is None else [m[s] for s in seeds]
+        mean = (lambda v: float(np.mean(v)) if v else float("nan"))
         out.append({"input": inp, "fusion": fus, "seeds": len(seeds),
-                    "lstm>mf>fcn": sum(a > b > c for a, b, c in zip(lstm, m, f)),
-                    "lstm>mf": sum(a > b for a, b in zip(lstm, m)), "mf>fcn": sum(a > b for a, b in zip(m, f)),
-                    "lstm>fcn": sum(a > b for a, b in zip(lstm, f)),
-                    "means": [float(np.mean(v)) if v else float("nan") for v in (f, m, lstm)]})
+                    "lstm>mf>fcn": None if mv is None else sum(a > b > c for a, b, c in zip(lv, mv, fv)),
+                    "lstm>mf": None if mv is None else sum(a > b for a, b in zip(lv, mv)),
+                    "mf>fcn": None if mv is None else sum(a > b for a, b in zip(mv, fv)),
+                    "lstm>fcn": sum(a > b for a, b in zip(lv, fv)),
+                    "means": [mean(fv), None if mv is None else mean(mv), mean(lv)]})
     return out
+
+
+def best_input(tab: dict, n: int, kind: str = "lstm_fcn", fusion: str = "early") -> dict:
+    """Among ``kind``'s networks with ``fusion`` (single inputs are trained as "early"), on how
+    many seeds each input scores highest, over the seeds where all of them ran:
+    {"seeds": k, "inputs": [...], "wins": {input: count}}."""
+    keys = [k for k in tab if k[0] == kind and k[2] == fusion]
+    seeds = [s for s in range(n) if all(tab[k][s] is not None for k in keys)]
+    wins = {k[1]: 0 for k in keys}
+    for s in seeds:
+        wins[max(keys, key=lambda k: tab[k][s])[1]] += 1
+    return {"kind": kind, "fusion": fusion, "seeds": len(seeds), "inputs": [k[1] for k in keys], "wins": wins}
 
 
 def fusion(tab: dict, n: int) -> list[dict]:
@@ -104,11 +140,11 @@ def plot(tab: dict, seeds: list, base: list, path: Path) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("results", type=Path, nargs="+", help="perception.json, one per dataset seed")
+    p.add_argument("results", type=Path, nargs="+", help="perception.json of each run (runs of one seed are merged)")
     p.add_argument("--json", type=Path, default=None, help="also write the tables here")
     p.add_argument("--plot", type=Path, default=None, help="also draw every network's AUC per seed (PNG)")
     args = p.parse_args(argv)
-    docs = [json.loads(f.read_text()) for f in args.results]
+    docs = merge_by_seed([json.loads(f.read_text()) for f in args.results])
     if len(docs) < 2:
         raise SystemExit("give the results of at least two seeds: one dataset cannot tell an ordering from chance")
     seeds = [d.get("seed") for d in docs]
@@ -122,18 +158,25 @@ def main(argv=None) -> int:
         got = [v for v in vals if v is not None]
         cells = "".join(f"{'–' if v is None else format(100 * v, '.1f'):>8}" for v in vals)
         print(f"{'/'.join(k):<26}{cells}{100 * np.mean(got):>8.1f}{ratios[k]:>11.1f}")
-    temp, fus = temporal(tab, n), fusion(tab, n)
+    temp, fus, best = temporal(tab, n), fusion(tab, n), best_input(tab, n)
     if temp:
         print("\ntemporal integration (seeds where it holds / seeds): LSTM-FCN > MF-FCN > FCN, and by pair")
         for t in temp:
-            f, m, lstm = (100 * x for x in t["means"])
+            f, m, lstm = t["means"]
+            if t["lstm>mf>fcn"] is None:
+                print(f"  {t['input']}/{t['fusion']}: LSTM > FCN {t['lstm>fcn']}/{t['seeds']} (no MF-FCN); "
+                      f"means {100 * f:.1f} / {100 * lstm:.1f}")
+                continue
             print(f"  {t['input']}/{t['fusion']}: {t['lstm>mf>fcn']}/{t['seeds']}; LSTM > MF {t['lstm>mf']}, "
-                  f"MF > FCN {t['mf>fcn']}, LSTM > FCN {t['lstm>fcn']}; means {f:.1f} / {m:.1f} / {lstm:.1f}")
+                  f"MF > FCN {t['mf>fcn']}, LSTM > FCN {t['lstm>fcn']}; means {100 * f:.1f} / {100 * m:.1f} / {100 * lstm:.1f}")
     if fus:
         print("\nfusion (seeds where early beats late / seeds)")
         for t in fus:
             print(f"  {t['kind']}/{t['input']}: {t['early>late']}/{t['seeds']}; "
                   f"means early {100 * t['mean_early']:.1f}, late {100 * t['mean_late']:.1f}")
+    if len(best["inputs"]) > 1:
+        print(f"\nbest input of the {best['kind']} networks with {best['fusion']} fusion (seeds it scores highest, "
+              f"of {best['seeds']}): " + ", ".join(f"{k} {v}" for k, v in best["wins"].items()))
     if args.plot:
         plot(tab, seeds, [d["baseline"]["test"]["0"] for d in docs], args.plot)
     if args.json:
@@ -141,7 +184,7 @@ def main(argv=None) -> int:
                                          "baseline": [d["baseline"]["test"]["0"] for d in docs],
                                          "test_auc": {"/".join(k): v for k, v in tab.items()},
                                          "min_baseline_ratio": {"/".join(k): v for k, v in ratios.items()},
-                                         "temporal": temp, "fusion": fus}, indent=2) + "\n")
+                                         "temporal": temp, "fusion": fus, "best_input": best}, indent=2) + "\n")
     return 0
 
 

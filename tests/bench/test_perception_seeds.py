@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.perception_seeds import baseline_ratios, fusion, table, temporal  # noqa: E402
+from bench.perception_seeds import baseline_ratios, best_input, fusion, merge_by_seed, table, temporal  # noqa: E402
 
 
 def _doc(seed, aucs, base=0.05):
@@ -50,6 +50,31 @@ def test_orderings_are_counted_per_seed():
     ratios = baseline_ratios(tab, DOCS)
     assert ratios[("fcn", "grey_flow", "early")] == pytest.approx(2.0)            # 0.10 / 0.05 on seeds 0 and 2
     assert ratios[("mf_fcn", "grey_flow", "early")] == pytest.approx(3.0)         # 0.12 / 0.04 on seed 1
+
+
+def test_inputs_without_an_mf_fcn_compare_lstm_with_fcn_and_the_best_input_is_counted():
+    docs = [{"seed": s, "baseline": {"test": {"0": 0.05}},
+             "results": [{"kind": k, "input_type": i, "fusion": "early", "test": {"0": v}} for k, i, v in rows]}
+            for s, rows in enumerate([
+                [("fcn", "flow", 0.10), ("lstm_fcn", "flow", 0.20), ("lstm_fcn", "grey_flow", 0.15)],
+                [("fcn", "flow", 0.10), ("lstm_fcn", "flow", 0.05), ("lstm_fcn", "grey_flow", 0.25)],
+                [("fcn", "flow", 0.10), ("lstm_fcn", "flow", 0.30)]])]
+    tab = table(docs)
+    (flow,) = [t for t in temporal(tab, 3) if t["input"] == "flow"]
+    assert (flow["lstm>fcn"], flow["seeds"], flow["lstm>mf>fcn"], flow["means"][1]) == (2, 3, None, None)
+    best = best_input(tab, 3)
+    assert best["seeds"] == 2 and best["wins"] == {"flow": 1, "grey_flow": 1}   # seed 2 lacks grey_flow
+
+
+def test_runs_of_one_seed_are_merged_and_clashes_refused():
+    first = _doc(0, {("fcn", "early"): 0.10, ("lstm_fcn", "early"): 0.30})
+    second = _doc(0, {("mf_fcn", "early"): 0.15})
+    (merged,) = merge_by_seed([first, second])
+    assert sorted(r["kind"] for r in merged["results"]) == ["fcn", "lstm_fcn", "mf_fcn"]
+    with pytest.raises(SystemExit, match="two of the given runs"):
+        merge_by_seed([first, first])
+    with pytest.raises(SystemExit, match="different baselines"):
+        merge_by_seed([first, _doc(0, {("mf_fcn", "early"): 0.15}, base=0.07)])
 
 
 def test_script_prints_the_counts_and_refuses_one_seed(tmp_path):
