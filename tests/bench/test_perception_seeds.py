@@ -92,3 +92,34 @@ def test_script_prints_the_counts_and_refuses_one_seed(tmp_path):
     bad = subprocess.run([sys.executable, str(ROOT / "bench" / "perception_seeds.py"), files[0]],
                          capture_output=True, text=True)
     assert bad.returncode != 0 and "at least two seeds" in bad.stderr
+
+
+def test_common_test_rescoring_matches_perception_score(tmp_path):
+    """bench/perception_common_test.py gives a model the AUC and baseline that `liquidtwin
+    perception score` (another code path) gives it on the same pour, and keeps the run's own."""
+    import torch
+
+    from liquidtwin.cli import main as cli
+    from liquidtwin.perception import build_model, save_model
+    from liquidtwin.perception.data import make_dataset
+    data, run = tmp_path / "data", tmp_path / "run"
+    make_dataset(data, train=0, test=1, seed=3, progress=False)
+    torch.manual_seed(0)
+    model = save_model(run / "models" / "fcn-grey_flow-early.pt", build_model("fcn", "grey_flow", "early"))
+    own = {"0": 0.5, "1": 0.6, "2": 0.7, "4": 0.8}
+    (run / "perception.json").write_text(json.dumps({"seed": 7, "baseline": {"test": own}, "results": [
+        {"kind": "fcn", "input_type": "grey_flow", "fusion": "early", "test": own}]}))
+    out = tmp_path / "common"
+    subprocess.run([sys.executable, str(ROOT / "bench" / "perception_common_test.py"), str(run), "--data", str(data),
+                    "--out", str(out)], capture_output=True, text=True, check=True)
+    assert cli(["perception", "score", str(model), "--data", str(data), "--json", str(tmp_path / "s.json")]) == 0
+    ref = json.loads((tmp_path / "s.json").read_text())["splits"]["test"]
+    (f,) = out.glob("perception_*.json")
+    doc = json.loads(f.read_text())
+    assert doc["seed"] == 7 and doc["test_pours"] == 1 and doc["baseline"]["own_test"] == own
+    assert doc["results"][0]["test"] == pytest.approx(ref["auc"], abs=1e-12)
+    assert doc["baseline"]["test"] == pytest.approx(ref["baseline"], abs=1e-12)
+    assert doc["results"][0]["own_test"] == own
+    bad = subprocess.run([sys.executable, str(ROOT / "bench" / "perception_common_test.py"), str(tmp_path),
+                          "--data", str(data), "--out", str(out)], capture_output=True, text=True)
+    assert bad.returncode != 0 and "no perception.json" in bad.stderr
