@@ -32,6 +32,10 @@ def _key(r: dict) -> tuple:
     return r["kind"], r["input_type"], r["fusion"]
 
 
+def _mean(values: list) -> float:
+    return float(np.mean(values)) if values else float("nan")
+
+
 def merge_by_seed(docs: list[dict]) -> list[dict]:
     """One doc per seed (first-seen order): the results of every run of that seed together.
     Runs of one seed must agree on the baseline (the same dataset) and not train a network twice."""
@@ -70,13 +74,12 @@ def temporal(tab: dict, n: int) -> list[dict]:
         seeds = [s for s in range(n) if all(r[s] is not None for r in rows)]
         fv, lv = [f[s] for s in seeds], [lstm[s] for s in seeds]
         mv = None if m is None else [m[s] for s in seeds]
-        mean = (lambda v: float(np.mean(v)) if v else float("nan"))
         out.append({"input": inp, "fusion": fus, "seeds": len(seeds),
                     "lstm>mf>fcn": None if mv is None else sum(a > b > c for a, b, c in zip(lv, mv, fv)),
                     "lstm>mf": None if mv is None else sum(a > b for a, b in zip(lv, mv)),
                     "mf>fcn": None if mv is None else sum(a > b for a, b in zip(mv, fv)),
                     "lstm>fcn": sum(a > b for a, b in zip(lv, fv)),
-                    "means": [mean(fv), None if mv is None else mean(mv), mean(lv)]})
+                    "means": [_mean(fv), None if mv is None else _mean(mv), _mean(lv)]})
     return out
 
 
@@ -102,14 +105,18 @@ def fusion(tab: dict, n: int) -> list[dict]:
         seeds = [s for s in range(n) if early[s] is not None and late[s] is not None]
         out.append({"kind": kind, "input": inp, "seeds": len(seeds),
                     "early>late": sum(early[s] > late[s] for s in seeds),
-                    "mean_early": float(np.mean([early[s] for s in seeds])) if seeds else float("nan"),
-                    "mean_late": float(np.mean([late[s] for s in seeds])) if seeds else float("nan")})
+                    "mean_early": _mean([early[s] for s in seeds]), "mean_late": _mean([late[s] for s in seeds])})
     return out
+
+
+def baselines(docs: list[dict]) -> list:
+    """Every seed's flow-baseline test AUC (0 px)."""
+    return [d["baseline"]["test"]["0"] for d in docs]
 
 
 def baseline_ratios(tab: dict, docs: list[dict]) -> dict:
     """{network key: smallest test AUC / baseline test AUC over the seeds it ran on}."""
-    base = [d["baseline"]["test"]["0"] for d in docs]
+    base = baselines(docs)
     return {k: min(v / b for v, b in zip(vals, base) if v is not None) for k, vals in tab.items()}
 
 
@@ -150,9 +157,9 @@ def main(argv=None) -> int:
     seeds = [d.get("seed") for d in docs]
     tab = table(docs)
     n = len(docs)
-    ratios = baseline_ratios(tab, docs)
-    base = " / ".join(f"{100 * d['baseline']['test']['0']:.1f}" for d in docs)
-    print(f"test AUC % (0 px, unseen containers) on seeds {seeds}; flow baseline {base}")
+    ratios, base = baseline_ratios(tab, docs), baselines(docs)
+    print(f"test AUC % (0 px, unseen containers) on seeds {seeds}; flow baseline "
+          + " / ".join(f"{100 * b:.1f}" for b in base))
     print(f"{'network':<26}" + "".join(f"{'s' + str(s):>8}" for s in seeds) + f"{'mean':>8}{'min ×base':>11}")
     for k, vals in tab.items():
         got = [v for v in vals if v is not None]
@@ -178,10 +185,10 @@ def main(argv=None) -> int:
         print(f"\nbest input of the {best['kind']} networks with {best['fusion']} fusion (seeds it scores highest, "
               f"of {best['seeds']}): " + ", ".join(f"{k} {v}" for k, v in best["wins"].items()))
     if args.plot:
-        plot(tab, seeds, [d["baseline"]["test"]["0"] for d in docs], args.plot)
+        plot(tab, seeds, base, args.plot)
     if args.json:
         args.json.write_text(json.dumps({"seeds": seeds, "files": [str(f) for f in args.results],
-                                         "baseline": [d["baseline"]["test"]["0"] for d in docs],
+                                         "baseline": base,
                                          "test_auc": {"/".join(k): v for k, v in tab.items()},
                                          "min_baseline_ratio": {"/".join(k): v for k, v in ratios.items()},
                                          "temporal": temp, "fusion": fus, "best_input": best}, indent=2) + "\n")
