@@ -36,11 +36,24 @@ def _mean(values: list) -> float:
     return float(np.mean(values)) if values else float("nan")
 
 
+#: What makes runs one grid: networks trained for other step counts, augmentations or
+#: selection rules are not compared with each other in one table.
+RECIPE = ("iterations", "augment", "select_every")
+
+
+def _recipe(d: dict) -> dict:
+    return {k: d.get(k) for k in RECIPE}
+
+
 def merge_by_seed(docs: list[dict]) -> list[dict]:
     """One doc per seed (first-seen order): the results of every run of that seed together.
-    Runs of one seed must agree on the baseline (the same dataset) and not train a network twice."""
+    Runs of one seed must agree on the baseline (the same dataset) and not train a network twice;
+    every run must share one training recipe (:data:`RECIPE`)."""
     out: dict = {}
     for d in docs:
+        if _recipe(d) != _recipe(docs[0]):
+            raise SystemExit(f"runs trained differently cannot share a table: seed {d.get('seed')} has "
+                             f"{_recipe(d)}, seed {docs[0].get('seed')} {_recipe(docs[0])}")
         seed = d.get("seed")
         if seed not in out:
             out[seed] = {"seed": seed, "baseline": d["baseline"], "results": []}

@@ -75,6 +75,10 @@ def test_runs_of_one_seed_are_merged_and_clashes_refused():
         merge_by_seed([first, first])
     with pytest.raises(SystemExit, match="different baselines"):
         merge_by_seed([first, _doc(0, {("mf_fcn", "early"): 0.15}, base=0.07)])
+    longer = dict(_doc(1, {("fcn", "early"): 0.2}), iterations={"crop": 2400, "full": 1200})
+    with pytest.raises(SystemExit, match="trained differently"):
+        merge_by_seed([first, longer])
+    assert len(merge_by_seed([dict(longer, seed=2), longer])) == 2       # one recipe throughout: merged
 
 
 def test_script_prints_the_counts_and_refuses_one_seed(tmp_path):
