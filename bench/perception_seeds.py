@@ -152,7 +152,7 @@ def plot(tab: dict, seeds: list, base: list, path: Path) -> None:
     ax.set_yticks(range(len(keys)), ["/".join(k) for k in keys])
     ax.invert_yaxis()
     ax.set_xlabel("test AUC %, 0 px slack, unseen containers (dashed: flow baseline)")
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)      # beside the axes: never over a dot
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
