@@ -127,25 +127,21 @@ def test_five_step_rollout_gradcheck(backend, checkpointed):
     model, x, pose0 = _scene(backend)
     state0 = lt.make_state(x, poses=pose0, dtype=torch.float64)
 
-    def f(lv, lc, angle):
+    def run(lv, lc, angle, checkpoint_steps=checkpointed):
         m = model.with_params(lambda_v=lv, lambda_c=lc)
         poses = torch.cat([_moving_pose(angle * (i + 1) / 5, angle * 0.0)[None] for i in range(5)])
-        s, _ = lt.rollout(m, state0, poses, checkpoint_steps=checkpointed, keep=False)
+        s, _ = lt.rollout(m, state0, poses, checkpoint_steps=checkpoint_steps, keep=False)
         return s.by_id()[0]
     args = tuple(torch.tensor(v, dtype=torch.float64, requires_grad=True) for v in (60.0, 0.1, 0.3))
     if not checkpointed:
-        assert torch.autograd.gradcheck(f, args, eps=1e-7, atol=1e-5, rtol=1e-3)
+        assert torch.autograd.gradcheck(run, args, eps=1e-7, atol=1e-5, rtol=1e-3)
         return
     # Checkpointed: the full Jacobian costs one recomputing backward per output entry (41 s of
     # the suite on the torch path). Its gradients must be the plain rollout's, which the case
     # above checks in full against finite differences: compared for random cotangents, and a
     # random projection checked against finite differences here too (gradcheck's fast mode).
-    def plain(lv, lc, angle):
-        m = model.with_params(lambda_v=lv, lambda_c=lc)
-        poses = torch.cat([_moving_pose(angle * (i + 1) / 5, angle * 0.0)[None] for i in range(5)])
-        return lt.rollout(m, state0, poses, keep=False)[0].by_id()[0]
     gen = torch.Generator().manual_seed(0)
-    ya, yb = f(*args), plain(*args)
+    ya, yb = run(*args), run(*args, checkpoint_steps=False)
     torch.testing.assert_close(ya, yb, rtol=0, atol=0)
     for _ in range(3):
         w = torch.randn(ya.shape, dtype=ya.dtype, generator=gen)
@@ -153,7 +149,7 @@ def test_five_step_rollout_gradcheck(backend, checkpointed):
         gb = torch.autograd.grad(yb, args, w, retain_graph=True)
         for a, b in zip(ga, gb):
             torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
-    assert torch.autograd.gradcheck(f, args, eps=1e-7, atol=1e-5, rtol=1e-3, fast_mode=True)
+    assert torch.autograd.gradcheck(run, args, eps=1e-7, atol=1e-5, rtol=1e-3, fast_mode=True)
 
 
 @needs_native
