@@ -18,6 +18,8 @@ import json
 import time
 from pathlib import Path
 
+from perception_seeds import RECIPE
+
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -62,7 +64,7 @@ def main(argv=None) -> int:
                             "own_test": r["test"], "score_s": round(time.perf_counter() - t, 1)})
             bar.update()
         out = {"kind": "perception", "seed": doc.get("seed"), "data": str(args.data), "run": str(run),
-               "test_pours": len(clips), "iterations": doc.get("iterations"), "augment": doc.get("augment"),
+               "test_pours": len(clips), **{k: doc.get(k) for k in RECIPE},
                "baseline": {"test": base, "own_test": doc["baseline"]["test"]}, "results": results}
         (args.out / f"perception_{i}_seed{doc.get('seed')}.json").write_text(json.dumps(out, indent=1) + "\n")
     bar.close()

@@ -111,7 +111,8 @@ def test_common_test_rescoring_matches_perception_score(tmp_path):
     torch.manual_seed(0)
     model = save_model(run / "models" / "fcn-grey_flow-early.pt", build_model("fcn", "grey_flow", "early"))
     own = {"0": 0.5, "1": 0.6, "2": 0.7, "4": 0.8}
-    (run / "perception.json").write_text(json.dumps({"seed": 7, "baseline": {"test": own}, "results": [
+    recipe = {"iterations": {"crop": 600, "full": 300}, "augment": "flip,colour", "select_every": 0}
+    (run / "perception.json").write_text(json.dumps({"seed": 7, **recipe, "baseline": {"test": own}, "results": [
         {"kind": "fcn", "input_type": "grey_flow", "fusion": "early", "test": own}]}))
     out = tmp_path / "common"
     subprocess.run([sys.executable, str(ROOT / "bench" / "perception_common_test.py"), str(run), "--data", str(data),
@@ -121,6 +122,7 @@ def test_common_test_rescoring_matches_perception_score(tmp_path):
     (f,) = out.glob("perception_*.json")
     doc = json.loads(f.read_text())
     assert doc["seed"] == 7 and doc["test_pours"] == 1 and doc["baseline"]["own_test"] == own
+    assert {k: doc[k] for k in recipe} == recipe       # the training recipe travels: runs stay told apart
     assert doc["results"][0]["test"] == pytest.approx(ref["auc"], abs=1e-12)
     assert doc["baseline"]["test"] == pytest.approx(ref["baseline"], abs=1e-12)
     assert doc["results"][0]["own_test"] == own
